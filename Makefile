@@ -1,0 +1,42 @@
+# Patternshop: `make demo` (set up + run the main job into out/), `make test` (set up + tests).
+# Both need only python3 and are idempotent: the venv is (re)installed when pyproject.toml changes.
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.patternshop-installed
+# pip's local-index warnings about missing mirror folders are noise; real errors still fail the pipe.
+PIP_QUIET := 2>&1 | { grep -v "is ignored: it is neither a file nor a directory" || true; }
+PS := $(BIN)/patternshop
+
+.PHONY: setup demo test bench examples clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@echo "installing into $(VENV) (torch CPU build, then patternshop in editable mode)"
+	$(BIN)/python -m pip install --disable-pip-version-check -q "torch==2.13.0" $(PIP_QUIET)
+	$(BIN)/python -m pip install --disable-pip-version-check -q -e ".[dev]" $(PIP_QUIET)
+	@touch $@
+
+demo: setup
+	@mkdir -p out
+	$(PS) preview examples/logo.tif out/logo_preview.png --scale 2
+	$(PS) preview examples/gradient.tif out/gradient_preview.png --scale 2
+	$(PS) split examples/logo.tif out/logo
+	$(PS) join out/logo.L.png out/logo_8bit.tif --bits 8
+	@echo "demo outputs in out/: previews, channel PNGs (out/logo.{L,a,b}.png), an 8-bit CIELAB TIFF"
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+bench: setup
+	$(BIN)/python bench/run.py
+
+examples: setup
+	$(BIN)/python examples/make_examples.py
+
+clean:
+	rm -rf out .pytest_cache

@@ -1,0 +1,5 @@
+"""Patternshop: edit point patterns as CIELAB images. The ``patternshop`` command lives here."""
+
+from synthesis.version import package_version
+
+__version__ = package_version()

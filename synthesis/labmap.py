@@ -1,0 +1,113 @@
+"""The in-memory map: a CIELAB image whose L is density and whose ab is correlation.
+
+Conventions (SPEC §3):
+
+* ``L`` in [0, 100]; density ``d = 1 - L / 100`` in [0, 1] (dark = many points).
+* ``a``, ``b`` in [-128, 127]; latent correlation coordinate
+  ``z = (ab + 128) / 255`` in [0, 1]^2, so that 8-bit values and the 256 x 256
+  palette table coincide.
+* The map covers the domain ``[0, w] x [0, h]`` with ``max(w, h) = 1``, origin at
+  the top-left pixel corner, y pointing down. Pixel (row i, column j) covers
+  ``[j, j+1] x [i, i+1]`` times ``1 / max(H, W)``.
+
+Colour conversions use colour-science with the D65 white point, which is what
+ImageMagick uses for CIELAB TIFFs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import colour
+import numpy as np
+
+from synthesis.errors import MapFormatError
+
+L_RANGE = (0.0, 100.0)
+AB_RANGE = (-128.0, 127.0)
+_D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+
+
+@dataclass(frozen=True, eq=False)
+class LabMap:
+    """A Patternshop map.
+
+    Attributes:
+        lab: (H, W, 3) float32 array; channel 0 is L in [0, 100], channels 1-2
+            are a, b in [-128, 127]. Values are clipped into range on creation.
+    """
+
+    lab: np.ndarray
+
+    def __post_init__(self) -> None:
+        lab = np.asarray(self.lab, dtype=np.float32)
+        if lab.ndim != 3 or lab.shape[2] != 3 or lab.shape[0] < 1 or lab.shape[1] < 1:
+            raise MapFormatError(f"a map needs shape (H, W, 3), got {lab.shape}")
+        if not np.all(np.isfinite(lab)):
+            raise MapFormatError("map contains NaN or infinite values")
+        lab = lab.copy()
+        np.clip(lab[..., 0], *L_RANGE, out=lab[..., 0])
+        np.clip(lab[..., 1:], *AB_RANGE, out=lab[..., 1:])
+        lab.setflags(write=False)
+        object.__setattr__(self, "lab", lab)
+
+    # --- construction -----------------------------------------------------
+    @classmethod
+    def from_density_latent(cls, density: np.ndarray, latent: np.ndarray) -> LabMap:
+        """Build a map from density (H, W) in [0, 1] and latent z (H, W, 2) in [0, 1]."""
+        density = np.asarray(density, dtype=np.float32)
+        latent = np.asarray(latent, dtype=np.float32)
+        if latent.shape != density.shape + (2,):
+            raise MapFormatError(f"latent shape {latent.shape} does not match density shape {density.shape} + (2,)")
+        L = 100.0 * (1.0 - density)
+        ab = 255.0 * latent - 128.0
+        return cls(np.concatenate([L[..., None], ab], axis=-1))
+
+    @classmethod
+    def from_srgb(cls, rgb: np.ndarray) -> LabMap:
+        """Convert an sRGB image (H, W, 3) with values in [0, 1] (D65) to a map."""
+        xyz = colour.RGB_to_XYZ(np.asarray(rgb, dtype=np.float64), "sRGB", apply_cctf_decoding=True)
+        return cls(colour.XYZ_to_Lab(xyz, _D65))
+
+    # --- views ------------------------------------------------------------
+    @property
+    def L(self) -> np.ndarray:
+        """(H, W) lightness in [0, 100]."""
+        return self.lab[..., 0]
+
+    @property
+    def ab(self) -> np.ndarray:
+        """(H, W, 2) chroma coordinates a, b in [-128, 127]."""
+        return self.lab[..., 1:]
+
+    @property
+    def height(self) -> int:
+        return int(self.lab.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.lab.shape[1])
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        """Domain size (w, h) in map units; the longer side is 1."""
+        side = max(self.width, self.height)
+        return self.width / side, self.height / side
+
+    def density(self) -> np.ndarray:
+        """(H, W) float32 density ``1 - L/100`` in [0, 1]; 1 is the darkest ink."""
+        return 1.0 - self.L / 100.0
+
+    def latent(self) -> np.ndarray:
+        """(H, W, 2) float32 correlation latent ``z = (ab + 128) / 255`` in [0, 1]."""
+        return (self.ab + 128.0) / 255.0
+
+    def to_srgb(self) -> np.ndarray:
+        """(H, W, 3) float64 sRGB in [0, 1] (D65), out-of-gamut colours clipped."""
+        xyz = colour.Lab_to_XYZ(self.lab.astype(np.float64), _D65)
+        rgb = colour.XYZ_to_RGB(xyz, "sRGB", apply_cctf_encoding=True)
+        return np.clip(rgb, 0.0, 1.0)
+
+    def __repr__(self) -> str:
+        w, h = self.domain
+        return f"LabMap({self.width}x{self.height} px, domain {w:.4g} x {h:.4g})"

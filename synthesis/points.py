@@ -1,0 +1,215 @@
+"""Point files: text/CSV (``x y [radius]``) and NumPy ``.npy`` (n x 2 or n x 3).
+
+Coordinates are in the map's domain ``[0, w] x [0, h]`` with ``max(w, h) = 1``,
+origin at the top-left, y pointing down (as in images and SVG). Text files may
+separate columns by white space or commas, may carry ``#`` comments and a CSV
+header (``x,y`` or ``x,y,radius``). A comment ``# domain: W H`` sets the domain
+of a text file; it is written by :func:`write_points` and read back.
+
+Every malformed input raises :class:`PointFileError` naming the file and line
+(or row, for ``.npy``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from synthesis.atomic import atomic_path
+from synthesis.errors import PointFileError
+
+TEXT_SUFFIXES = (".txt", ".csv", ".xy", ".pts")
+NPY_SUFFIX = ".npy"
+_SEPARATORS = re.compile(r"[,\s]+")
+_DOMAIN_COMMENT = re.compile(r"^\s*domain\s*[:=]\s*(\S+)[\s,]+(\S+)\s*$", re.IGNORECASE)
+_HEADER_NAMES = {"x", "y", "r", "radius"}
+
+PathLike = str | os.PathLike
+
+
+def check_domain(domain: tuple[float, float]) -> tuple[float, float]:
+    """Validate a domain (w, h): positive, finite, longer side 1. Returns it as floats."""
+    w, h = (float(v) for v in domain)
+    if not (math.isfinite(w) and math.isfinite(h) and w > 0 and h > 0) or not math.isclose(max(w, h), 1.0, rel_tol=1e-6):
+        raise PointFileError(f"domain must be (w, h) with positive sides and max(w, h) = 1, got ({w:g}, {h:g})")
+    return w, h
+
+
+@dataclass(frozen=True, eq=False)
+class PointSet:
+    """A point pattern.
+
+    Attributes:
+        xy: (n, 2) float64 positions in ``[0, w] x [0, h]``, y down.
+        domain: (w, h), longer side 1.
+        radius: optional (n,) float64 dot radii (same units as ``xy``), >= 0.
+    """
+
+    xy: np.ndarray
+    domain: tuple[float, float] = (1.0, 1.0)
+    radius: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        xy = np.asarray(self.xy, dtype=np.float64).reshape(-1, 2)
+        object.__setattr__(self, "xy", xy)
+        object.__setattr__(self, "domain", check_domain(self.domain))
+        if self.radius is not None:
+            radius = np.asarray(self.radius, dtype=np.float64).reshape(-1)
+            if radius.shape != (len(xy),):
+                raise PointFileError(f"{len(radius)} radii for {len(xy)} points")
+            object.__setattr__(self, "radius", radius)
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+
+def read_points(path: PathLike, domain: tuple[float, float] | None = None) -> PointSet:
+    """Read a point file (``.txt``/``.csv``/``.xy``/``.pts`` text, or ``.npy``).
+
+    Args:
+        path: the file.
+        domain: (w, h) the points must lie in. Default: the file's
+            ``# domain: W H`` comment if any, else the unit square.
+
+    Raises:
+        PointFileError: missing file, unknown format, or malformed content;
+            the message starts with ``FILE:LINE:`` where a line is to blame.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise PointFileError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix == NPY_SUFFIX:
+        values, rows, file_domain = _parse_npy(path), None, None
+    elif suffix in TEXT_SUFFIXES:
+        values, rows, file_domain = _parse_text(path)
+    else:
+        raise PointFileError(f"{path}: unsupported point format '{path.suffix}' (use .txt, .csv or .npy)")
+    if len(values) == 0:
+        raise PointFileError(f"{path}: no points (empty file)")
+    try:
+        domain = check_domain(domain or file_domain or (1.0, 1.0))
+    except PointFileError as exc:
+        raise PointFileError(f"{path}: {exc}") from None
+    _check_values(path, values, rows, domain)
+    radius = values[:, 2] if values.shape[1] == 3 else None
+    return PointSet(values[:, :2], domain, radius)
+
+
+def _where(path: Path, rows: list[int] | None, index: int) -> str:
+    """``FILE:LINE`` for text files, ``FILE: row N`` for arrays (1-based)."""
+    return f"{path}:{rows[index]}" if rows is not None else f"{path}: row {index + 1}"
+
+
+def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] | None]:
+    """Parse a text point file -> (n, 2|3) values, their 1-based line numbers, domain comment."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise PointFileError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
+    values: list[list[float]] = []
+    rows: list[int] = []
+    domain = None
+    columns = 0
+    for number, line in enumerate(text.splitlines(), start=1):
+        content, _, comment = line.partition("#")
+        match = _DOMAIN_COMMENT.match(comment)
+        if match:
+            domain = _parse_domain_comment(path, number, match.groups())
+        tokens = [t for t in _SEPARATORS.split(content.strip()) if t]
+        if not tokens:
+            continue
+        if not values and not columns and {t.lower() for t in tokens} <= _HEADER_NAMES and tokens[:2] in (["x", "y"], ["X", "Y"]):
+            continue  # CSV header
+        if columns == 0:
+            columns = len(tokens)
+            if columns not in (2, 3):
+                raise PointFileError(f"{path}:{number}: expected 2 or 3 columns (x y [radius]), got {columns}")
+        elif len(tokens) != columns:
+            raise PointFileError(f"{path}:{number}: expected {columns} columns like the first point line, got {len(tokens)}")
+        try:
+            values.append([float(t) for t in tokens])
+        except ValueError:
+            bad = next(t for t in tokens if not _is_number(t))
+            raise PointFileError(f"{path}:{number}: '{bad}' is not a number") from None
+        rows.append(number)
+    return np.array(values, dtype=np.float64).reshape(-1, columns or 2), rows, domain
+
+
+def _parse_domain_comment(path: Path, number: int, fields: tuple[str, str]) -> tuple[float, float]:
+    try:
+        return check_domain(tuple(float(f) for f in fields))  # type: ignore[arg-type]
+    except (ValueError, PointFileError) as exc:
+        raise PointFileError(f"{path}:{number}: bad domain comment ({exc})") from None
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _parse_npy(path: Path) -> np.ndarray:
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise PointFileError(f"{path}: not a readable .npy file ({exc})") from None
+    if array.ndim != 2 or array.shape[1] not in (2, 3):
+        if array.size == 0:
+            return np.empty((0, 2))
+        raise PointFileError(f"{path}: expected an array of shape (n, 2) or (n, 3), got {array.shape}")
+    if not np.issubdtype(array.dtype, np.number) or np.iscomplexobj(array):
+        raise PointFileError(f"{path}: expected real numbers, got dtype {array.dtype}")
+    return array.astype(np.float64)
+
+
+def _check_values(path: Path, values: np.ndarray, rows: list[int] | None, domain: tuple[float, float]) -> None:
+    """Finite values, non-negative radii, positions inside the domain."""
+    bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
+    if len(bad):
+        raise PointFileError(f"{_where(path, rows, bad[0])}: non-finite value {tuple(values[bad[0]].tolist())}")
+    if values.shape[1] == 3:
+        bad = np.flatnonzero(values[:, 2] < 0)
+        if len(bad):
+            raise PointFileError(f"{_where(path, rows, bad[0])}: negative radius {values[bad[0], 2]:g}")
+    w, h = domain
+    x, y = values[:, 0], values[:, 1]
+    bad = np.flatnonzero((x < 0) | (x > w) | (y < 0) | (y > h))
+    if len(bad):
+        px, py = values[bad[0], :2]
+        raise PointFileError(
+            f"{_where(path, rows, bad[0])}: point ({px:g}, {py:g}) lies outside the domain [0, {w:g}] x [0, {h:g}]"
+            + (f" ({len(bad)} points outside)" if len(bad) > 1 else "")
+        )
+
+
+def write_points(points: PointSet, path: PathLike) -> None:
+    """Write points atomically; the format follows the suffix (``.txt``, ``.csv``, ``.npy``).
+
+    ``.txt`` carries a ``# domain: W H`` comment; ``.csv`` a header ``x,y[,radius]``.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    columns = [points.xy] if points.radius is None else [points.xy, points.radius[:, None]]
+    table = np.hstack(columns)
+    w, h = points.domain
+    with atomic_path(path) as tmp:
+        if suffix == NPY_SUFFIX:
+            with open(tmp, "wb") as handle:
+                np.save(handle, table)
+        elif suffix == ".csv":
+            header = "x,y" if points.radius is None else "x,y,radius"
+            np.savetxt(tmp, table, fmt="%.9g", delimiter=",", header=header, comments="")
+        elif suffix in TEXT_SUFFIXES:
+            names = "x y" if points.radius is None else "x y radius"
+            header = f"patternshop points: {names}; origin top-left, y down\ndomain: {w:.9g} {h:.9g}"
+            np.savetxt(tmp, table, fmt="%.9g", header=header)
+        else:
+            raise PointFileError(f"{path}: unsupported point format '{path.suffix}' (use .txt, .csv or .npy)")

@@ -1,0 +1,18 @@
+"""The installed package version, for `--version` and file provenance."""
+
+from __future__ import annotations
+
+from importlib import metadata
+
+
+def package_version() -> str:
+    """Version of the installed ``patternshop`` distribution ("unknown" when not installed)."""
+    try:
+        return metadata.version("patternshop")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def version_string() -> str:
+    """``"patternshop X.Y.Z"``, as written into the files Patternshop makes."""
+    return f"patternshop {package_version()}"
