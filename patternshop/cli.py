@@ -74,7 +74,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
-    from synthesis.errors import PatternshopError
+    from synthesis.errors import PatternshopError, PatternshopWarning
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -82,6 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_USER_ERROR
     with warnings.catch_warnings():
+        warnings.simplefilter("always", PatternshopWarning)
         if not args.debug:
             warnings.showwarning = _show_warning
         try:

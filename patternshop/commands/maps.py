@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from patternshop.commands import check_output
+from synthesis.errors import PatternshopError
 
 
 def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -56,8 +58,10 @@ def run_preview(args: argparse.Namespace) -> None:
 
 
 def run_split(args: argparse.Namespace) -> None:
-    from synthesis.mapio import channel_paths, read_map, write_channels
+    from synthesis.mapio import TIFF_SUFFIXES, channel_paths, read_map, write_channels
 
+    if Path(args.output).suffix.lower() in (*TIFF_SUFFIXES, ".jpg", ".jpeg"):
+        raise PatternshopError(f"{args.output}: split writes NAME.L.png, NAME.a.png, NAME.b.png: give NAME")
     for target in channel_paths(args.output):
         check_output(target, args.map)
     paths = write_channels(read_map(args.map), args.output)

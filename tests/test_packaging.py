@@ -1,0 +1,36 @@
+"""Packaging facts the rest of the project relies on."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from importlib import metadata
+
+from hydra import compose, initialize_config_module
+
+
+def test_distribution_pins_cpu_torch_and_has_no_torchvision():
+    requirements = metadata.requires("patternshop") or []
+    assert "torch==2.13.*" in requirements
+    assert not any(r.lower().startswith("torchvision") for r in requirements)
+
+
+def test_console_script_registered():
+    scripts = {ep.name: ep.value for ep in metadata.entry_points(group="console_scripts")}
+    assert scripts.get("patternshop") == "patternshop.cli:entry_point"
+
+
+def test_packages_import_and_synthesis_never_imports_lightning():
+    code = (
+        "import sys, synthesis, synthesis.mapio, synthesis.points, data_gen, patternshop_nn, export, conf; "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('lightning', 'pytorch_lightning', 'torchvision')]; "
+        "print(bad); sys.exit(1 if bad else 0)"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_hydra_finds_conf_as_a_package():
+    with initialize_config_module(config_module="conf", version_base=None):
+        cfg = compose(config_name="examples", overrides=["bits=8"])
+    assert cfg.bits == 8 and cfg.logo.width == 384
