@@ -97,7 +97,8 @@ def _read_tiff(path: Path) -> LabMap:
             sampleformat = int(page.sampleformat)
             pixels = page.asarray()
             axes = page.axes
-    except (tifffile.TiffFileError, ValueError, OSError, KeyError, IndexError) as exc:
+    except (tifffile.TiffFileError, ValueError, OSError, KeyError, IndexError, RuntimeError) as exc:
+        # RuntimeError: imagecodecs' decoder errors (e.g. a truncated deflate stream)
         raise MapFormatError(f"{path}: not a readable TIFF ({exc})") from exc
     pixels = _to_height_width_samples(pixels, axes, path)
     if photometric in (_PHOTOMETRIC_CIELAB, _PHOTOMETRIC_ICCLAB):

@@ -25,8 +25,8 @@ from synthesis.errors import PointFileError
 
 TEXT_SUFFIXES = (".txt", ".csv", ".xy", ".pts")
 NPY_SUFFIX = ".npy"
-_SEPARATORS = re.compile(r"[,\s]+")
 _DOMAIN_COMMENT = re.compile(r"^\s*domain\s*[:=]\s*(\S+)[\s,]+(\S+)\s*$", re.IGNORECASE)
+_SEPARATORS = re.compile(r"\s*,\s*|\s+")
 _HEADER_NAMES = {"x", "y", "r", "radius"}
 
 PathLike = str | os.PathLike
@@ -34,7 +34,10 @@ PathLike = str | os.PathLike
 
 def check_domain(domain: tuple[float, float]) -> tuple[float, float]:
     """Validate a domain (w, h): positive, finite, longer side 1. Returns it as floats."""
-    w, h = (float(v) for v in domain)
+    try:
+        w, h = (float(v) for v in domain)
+    except (TypeError, ValueError):
+        raise PointFileError(f"domain must be two numbers (w, h), got {domain!r}") from None
     if not (math.isfinite(w) and math.isfinite(h) and w > 0 and h > 0) or not math.isclose(max(w, h), 1.0, rel_tol=1e-6):
         raise PointFileError(f"domain must be (w, h) with positive sides and max(w, h) = 1, got ({w:g}, {h:g})")
     return w, h
@@ -55,7 +58,9 @@ class PointSet:
     radius: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        xy = np.asarray(self.xy, dtype=np.float64).reshape(-1, 2)
+        xy = np.asarray(self.xy, dtype=np.float64)
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise PointFileError(f"point positions need shape (n, 2), got {xy.shape}")
         object.__setattr__(self, "xy", xy)
         object.__setattr__(self, "domain", check_domain(self.domain))
         if self.radius is not None:
@@ -93,7 +98,7 @@ def read_points(path: PathLike, domain: tuple[float, float] | None = None) -> Po
     if len(values) == 0:
         raise PointFileError(f"{path}: no points (empty file)")
     try:
-        domain = check_domain(domain or file_domain or (1.0, 1.0))
+        domain = check_domain(next(d for d in (domain, file_domain, (1.0, 1.0)) if d is not None))
     except PointFileError as exc:
         raise PointFileError(f"{path}: {exc}") from None
     _check_values(path, values, rows, domain)
@@ -116,16 +121,19 @@ def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] 
     rows: list[int] = []
     domain = None
     columns = 0
-    for number, line in enumerate(text.splitlines(), start=1):
+    # split at "\n" only: read_text already turned CRLF and CR into "\n", and
+    # str.splitlines() would also break at form feeds and Unicode separators
+    for number, line in enumerate(text.split("\n"), start=1):
         content, _, comment = line.partition("#")
         match = _DOMAIN_COMMENT.match(comment)
         if match:
             domain = _parse_domain_comment(path, number, match.groups())
-        tokens = [t for t in _SEPARATORS.split(content.strip()) if t]
+        tokens = _split_fields(path, number, content)
         if not tokens:
             continue
-        if not values and not columns and {t.lower() for t in tokens} <= _HEADER_NAMES and tokens[:2] in (["x", "y"], ["X", "Y"]):
-            continue  # CSV header
+        if not values and not columns and _is_header(tokens):
+            columns = len(tokens)  # a CSV header fixes the column count
+            continue
         if columns == 0:
             columns = len(tokens)
             if columns not in (2, 3):
@@ -139,6 +147,23 @@ def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] 
             raise PointFileError(f"{path}:{number}: '{bad}' is not a number") from None
         rows.append(number)
     return np.array(values, dtype=np.float64).reshape(-1, columns or 2), rows, domain
+
+
+def _split_fields(path: Path, number: int, content: str) -> list[str]:
+    """Fields of one line, separated by commas and/or white space; ``a,,b`` is an error."""
+    content = content.strip()
+    if not content:
+        return []
+    fields = _SEPARATORS.split(content)
+    if "" in fields:
+        raise PointFileError(f"{path}:{number}: empty field between commas")
+    return fields
+
+
+def _is_header(tokens: list[str]) -> bool:
+    """A CSV header line: ``x,y`` or ``x,y,radius`` (any case; ``r`` for radius)."""
+    names = [t.lower() for t in tokens]
+    return names[:2] == ["x", "y"] and len(names) in (2, 3) and set(names[2:]) <= _HEADER_NAMES - {"x", "y"}
 
 
 def _parse_domain_comment(path: Path, number: int, fields: tuple[str, str]) -> tuple[float, float]:
@@ -161,6 +186,9 @@ def _parse_npy(path: Path) -> np.ndarray:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         raise PointFileError(f"{path}: not a readable .npy file ({exc})") from None
+    if not isinstance(array, np.ndarray):  # an .npz archive under a .npy name
+        array.close()
+        raise PointFileError(f"{path}: an .npz archive, not a single .npy array")
     if array.ndim != 2 or array.shape[1] not in (2, 3):
         if array.size == 0:
             return np.empty((0, 2))
