@@ -1,0 +1,82 @@
+"""Palette commands: ``palette`` (picture and preset list) and ``analyze`` (a pattern's correlation)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from patternshop.commands import check_output
+
+
+def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """Add ``palette`` and ``analyze``."""
+    palette = subparsers.add_parser(
+        "palette",
+        parents=[common],
+        help="draw the correlation palette (ab plane with example patterns), or list the presets",
+        description="Draw the ab plane of the correlation palette as a grid of example patterns, each on a "
+        "background of its colour, with the named presets marked, so you can pick a colour by its look. "
+        "With --list, print the presets as JSON instead: {\"blue\": {\"a\": .., \"b\": ..}, ...}.",
+    )
+    palette.add_argument("output", nargs="?", help="output .png (not needed with --list)")
+    palette.add_argument("--list", action="store_true", help="print the presets as JSON and exit")
+    palette.add_argument("--grid", type=int, default=9, metavar="N", help="cells per side (default 9)")
+    palette.add_argument("--cell", type=int, default=112, metavar="PX", help="cell size in pixels (default 112)")
+    palette.add_argument("--palette", metavar="FILE", help="palette asset (default: the shipped one)")
+    palette.set_defaults(func=run_palette)
+
+    analyze = subparsers.add_parser(
+        "analyze",
+        parents=[common],
+        help="measure a pattern's PCF and spectrum and find its palette colour",
+        description="Estimate the pair correlation function (radii in units of r_max, border handled by "
+        "minus sampling) and the radial power spectrum of a stationary pattern, decode its palette colour "
+        "(a, b) and name the nearest preset.",
+    )
+    analyze.add_argument("points", help="point file (.txt, .csv, .npy)")
+    analyze.add_argument("--plot", metavar="PNG", help="write a plot of the PCF and the spectrum")
+    analyze.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    analyze.add_argument("--domain", nargs=2, type=float, metavar=("W", "H"), help="domain of the points (default: from the file, else 1 1)")
+    analyze.add_argument("--palette", metavar="FILE", help="palette asset (default: the shipped one)")
+    analyze.set_defaults(func=run_analyze)
+
+
+def run_palette(args: argparse.Namespace) -> None:
+    from synthesis.errors import PatternshopError
+    from synthesis.palette import load_palette
+
+    palette = load_palette(args.palette)
+    if args.list:
+        print(json.dumps({name: {"a": a, "b": b} for name, (a, b) in palette.preset_ab().items()}, indent=2))
+        return
+    if not args.output:
+        raise PatternshopError("give an output .png (or --list)")
+    if args.grid < 2 or args.cell < 32:
+        raise PatternshopError("--grid must be >= 2 and --cell >= 32")
+    from synthesis.palette_image import draw_palette
+
+    output = check_output(args.output, suffixes=(".png",))
+    draw_palette(palette, output, grid=args.grid, cell=args.cell)
+    print(f"wrote {output}", file=sys.stderr)
+
+
+def run_analyze(args: argparse.Namespace) -> None:
+    from synthesis.analysis import analyze_points, plot_analysis
+    from synthesis.palette import load_palette
+    from synthesis.points import read_points
+
+    plot = check_output(args.plot, args.points, suffixes=(".png",)) if args.plot else None
+    points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
+    result = analyze_points(points, load_palette(args.palette))
+    if plot is not None:
+        plot_analysis(result, plot)
+    if args.json:
+        print(json.dumps(result))
+        return
+    print(f"{args.points}: {result['n']} points, domain {result['domain'][0]:g} x {result['domain'][1]:g}")
+    print(f"palette colour: a = {result['a']:.1f}, b = {result['b']:.1f} (hue {result['hue']:.0f} deg, chroma {result['chroma']:.0f})")
+    print(f"nearest preset: {result['nearest_preset']}")
+    print("PCF (r / r_max: g): " + ", ".join(f"{r:.2f}: {g:.2f}" for r, g in zip(result["r"][::3], result["pcf"][::3])))
+    if plot is not None:
+        print(f"wrote {plot}")

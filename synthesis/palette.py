@@ -1,0 +1,184 @@
+"""The correlation palette: a 2D perceptual colour space of point correlations.
+
+Built once by ``python -m data_gen.palette`` (see there and SPEC §2.1) and
+shipped as ``synthesis/assets/palette.npz`` with a provenance record
+``palette.json`` beside it. At run time it answers two questions:
+
+* **encode** — which PCF does the chroma (a, b) stand for? :meth:`Palette.pcf`
+  samples the 256 x 256 x m look-up table bilinearly, so 8-bit, 16-bit and
+  float maps all work (the 8-bit grid points are the table entries).
+* **decode** — which chroma describes this point pattern? :meth:`Palette.decode`
+  measures its perceptual features and returns the coordinate of the nearest
+  exemplar (paper eq. 5), comparing PCA-reduced features.
+
+Latent ``z`` in [0, 1]^2 and chroma relate by ``a, b = 255 z - 128``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from synthesis.errors import PatternshopError
+
+ASSET_DIR = Path(__file__).resolve().parent / "assets"
+DEFAULT_PALETTE = ASSET_DIR / "palette.npz"
+FORMAT_VERSION = 1
+LUT_SIZE = 256
+
+
+def latent_to_ab(z: np.ndarray) -> np.ndarray:
+    """Latent z in [0, 1] (..., 2) -> chroma (a, b) in [-128, 127]."""
+    return 255.0 * np.asarray(z, np.float64) - 128.0
+
+
+def ab_to_latent(ab: np.ndarray) -> np.ndarray:
+    """Chroma (a, b) (..., 2) in [-128, 127] -> latent z in [0, 1]."""
+    return (np.asarray(ab, np.float64) + 128.0) / 255.0
+
+
+def hue_chroma(a: float, b: float) -> tuple[float, float]:
+    """CIELAB hue angle atan2(b, a) in degrees [0, 360) and chroma sqrt(a^2 + b^2)."""
+    return float(np.degrees(np.arctan2(b, a)) % 360.0), float(np.hypot(a, b))
+
+
+@dataclass(frozen=True, eq=False)
+class Palette:
+    """A loaded palette (arrays as stored in the asset; see :mod:`data_gen.palette`).
+
+    Attributes:
+        radii: (m,) PCF radii in units of r_max.
+        lut: (256, 256, m) float32 PCFs; ``lut[i, j]`` is the PCF of a = i - 128, b = j - 128.
+        exemplar_z: (N, 2) latent coordinates of the corpus exemplars.
+        exemplar_pcf: (N, m) their PCFs.
+        exemplar_points: (N, P, 2) their point sets on the unit torus.
+        codes: (N, k) PCA-reduced perceptual features of the exemplars.
+        feature_mean, components, block_scale: the feature reduction
+            ``code = (features * block_weights - mean) @ components.T``.
+        presets: name -> {"a", "b", ...}.
+        extractor: description of the feature extractor that built the palette.
+    """
+
+    radii: np.ndarray
+    lut: np.ndarray
+    exemplar_z: np.ndarray
+    exemplar_pcf: np.ndarray
+    exemplar_points: np.ndarray
+    codes: np.ndarray
+    feature_mean: np.ndarray
+    components: np.ndarray
+    block_scale: np.ndarray
+    presets: dict
+    extractor: dict
+
+    # --- I/O --------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | os.PathLike | None = None) -> Palette:
+        """Load a palette asset (default: the shipped one)."""
+        path = Path(path) if path is not None else DEFAULT_PALETTE
+        if not path.is_file():
+            raise PatternshopError(f"{path}: palette not found (build it with 'python -m data_gen.palette')")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                version = int(data["format_version"])
+                if version != FORMAT_VERSION:
+                    raise PatternshopError(f"{path}: palette format {version}, this Patternshop reads {FORMAT_VERSION}")
+                return cls(
+                    radii=data["radii"].astype(np.float64),
+                    lut=data["lut"].astype(np.float32),
+                    exemplar_z=data["exemplar_z"].astype(np.float64),
+                    exemplar_pcf=data["exemplar_pcf"].astype(np.float32),
+                    exemplar_points=data["exemplar_points"].astype(np.float64) / 65535.0,
+                    codes=data["codes"].astype(np.float32),
+                    feature_mean=data["feature_mean"].astype(np.float32),
+                    components=data["components"].astype(np.float32),
+                    block_scale=data["block_scale"].astype(np.float32),
+                    presets=json.loads(str(data["presets_json"])),
+                    extractor=json.loads(str(data["extractor_json"])),
+                )
+        except (KeyError, ValueError, OSError) as exc:
+            raise PatternshopError(f"{path}: not a readable palette ({exc})") from exc
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the asset atomically (compressed npz; points as uint16, LUT and components as float16)."""
+        from synthesis.atomic import atomic_path
+
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as handle:
+                np.savez_compressed(
+                    handle,
+                    format_version=np.int64(FORMAT_VERSION),
+                    radii=self.radii.astype(np.float32),
+                    lut=self.lut.astype(np.float16),
+                    exemplar_z=self.exemplar_z.astype(np.float32),
+                    exemplar_pcf=self.exemplar_pcf.astype(np.float32),
+                    exemplar_points=np.rint(np.clip(self.exemplar_points, 0, 1) * 65535).astype(np.uint16),
+                    codes=self.codes.astype(np.float32),
+                    feature_mean=self.feature_mean.astype(np.float32),
+                    components=self.components.astype(np.float16),
+                    block_scale=self.block_scale.astype(np.float32),
+                    presets_json=np.str_(json.dumps(self.presets)),
+                    extractor_json=np.str_(json.dumps(self.extractor)),
+                )
+
+    # --- encoding ---------------------------------------------------------
+    def pcf_at_latent(self, z: np.ndarray) -> np.ndarray:
+        """PCFs (..., m) for latent coordinates z (..., 2) in [0, 1], bilinear in the LUT."""
+        position = np.clip(np.asarray(z, np.float64), 0.0, 1.0) * (LUT_SIZE - 1)
+        lower = np.minimum(np.floor(position).astype(np.int64), LUT_SIZE - 2)
+        t = (position - lower)[..., None]
+        i, j = lower[..., 0], lower[..., 1]
+        ta, tb = t[..., 0, :], t[..., 1, :]
+        lut = self.lut
+        return ((1 - ta) * (1 - tb) * lut[i, j] + ta * (1 - tb) * lut[i + 1, j]
+                + (1 - ta) * tb * lut[i, j + 1] + ta * tb * lut[i + 1, j + 1]).astype(np.float32)
+
+    def pcf(self, a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
+        """PCFs (..., m) for chroma a, b (scalars or arrays of one shape) in [-128, 127]."""
+        return self.pcf_at_latent(ab_to_latent(np.stack(np.broadcast_arrays(a, b), axis=-1)))
+
+    # --- decoding ---------------------------------------------------------
+    @functools.cached_property
+    def _extractor(self):  # noqa: ANN202 - FeatureExtractor, imported lazily (torch)
+        from synthesis.features import FeatureExtractor
+
+        return FeatureExtractor(self.extractor["name"], self.extractor.get("seed", 0), self.extractor.get("weights"))
+
+    def reduce(self, features: np.ndarray) -> np.ndarray:
+        """Raw features (..., 61440) -> PCA codes (..., k)."""
+        from synthesis.features import block_slices
+
+        scaled = np.array(features, np.float32, copy=True)
+        for block, scale in zip(block_slices(), self.block_scale):
+            scaled[..., block] *= scale
+        return (scaled - self.feature_mean) @ self.components.T
+
+    def nearest_exemplar(self, points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = False) -> int:
+        """Index of the exemplar perceptually nearest to points (n, 2) in [0, w] x [0, h]."""
+        code = self.reduce(self._extractor(points, domain, periodic))
+        return int(np.argmin(np.sum((self.codes - code) ** 2, axis=1)))
+
+    def decode(self, points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = False) -> tuple[float, float]:
+        """Chroma (a, b) of a stationary pattern, points (n, 2) in [0, w] x [0, h], at any density."""
+        a, b = latent_to_ab(self.exemplar_z[self.nearest_exemplar(points, domain, periodic)])
+        return float(a), float(b)
+
+    # --- presets ----------------------------------------------------------
+    def preset_ab(self) -> dict[str, tuple[float, float]]:
+        """Preset name -> chroma (a, b)."""
+        return {name: (float(p["a"]), float(p["b"])) for name, p in self.presets.items()}
+
+    def nearest_preset(self, a: float, b: float) -> str:
+        """Name of the preset whose chroma is nearest to (a, b)."""
+        return min(self.preset_ab().items(), key=lambda item: np.hypot(item[1][0] - a, item[1][1] - b))[0]
+
+
+@functools.lru_cache(maxsize=4)
+def load_palette(path: str | None = None) -> Palette:
+    """Cached :meth:`Palette.load` (one copy per process)."""
+    return Palette.load(path)
