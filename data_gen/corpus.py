@@ -54,7 +54,7 @@ class CorpusConfig:
     fit_iterations: int = 200
     fit_learning_rate: float = 2e-3
     chunk: int = 25
-    extractor: tuple[tuple[str, object], ...] = (("name", "random-cnn"), ("seed", 0), ("weights", None))
+    extractor: tuple[tuple[str, object], ...] = (("name", "random-cnn"), ("seed", 0), ("weights", None), ("version", 1))
 
     def key(self) -> str:
         """Short hash identifying the corpus contents."""
@@ -83,7 +83,7 @@ def _make_chunk(config: CorpusConfig, indices: list[int]) -> dict[str, np.ndarra
     from synthesis.spectrum import RadialSpectrum, fit_spectrum
 
     torch.set_num_threads(1)
-    extractor = FeatureExtractor(**dict(config.extractor))
+    extractor = FeatureExtractor(**{k: v for k, v in config.extractor if k != "version"})
     spectrum = RadialSpectrum(config.points, config.spectrum.bins)
     out: dict[str, list] = {"index": [], "target": [], "points": [], "realised": [], "fit_rms": [], "pcf": [], "features": []}
     for index in indices:

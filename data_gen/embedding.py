@@ -53,13 +53,18 @@ def trustworthiness(dissimilarity: np.ndarray, layout: np.ndarray, k: int = 10) 
     return float(sk_trustworthiness(dissimilarity, layout, n_neighbors=k, metric="precomputed"))
 
 
-def orient(layout: np.ndarray, anchors: dict[str, np.ndarray], hues: dict[str, float]) -> tuple[np.ndarray, dict]:
-    """Rotate, reflect and scale a layout into [0, 1]^2 so anchors land on their hues.
+def orient(
+    layout: np.ndarray, anchors: dict[str, np.ndarray], hues: dict[str, float], blue_window: float = 40.0,
+    min_blue_chroma: float = 30.0,
+) -> tuple[np.ndarray, dict]:
+    """Rotate, reflect and normalise a layout into [0, 1]^2 so anchors land on their hues.
 
-    The layout is centred on its centroid (which becomes the neutral chroma
-    z = 0.5), rotated so that ``anchors["blue"]`` points to ``hues["blue"]``,
-    reflected across that direction if this brings the other anchors closer to
-    their hues, and scaled uniformly so the whole layout fits in [0, 1]^2.
+    Every rotation (1 degree steps) with and without a reflection is followed
+    by a per-axis min-max normalisation to [0, 1]^2 (so the palette fills the
+    ab square even when the layout is elongated); among those that put
+    ``anchors["blue"]`` within ``blue_window`` degrees of ``hues["blue"]`` with
+    chroma >= ``min_blue_chroma``, the one with the smallest summed hue error
+    of all anchors wins (falling back to all candidates if none qualifies).
 
     Args:
         layout: (N, 2) MDS coordinates.
@@ -67,34 +72,33 @@ def orient(layout: np.ndarray, anchors: dict[str, np.ndarray], hues: dict[str, f
         hues: name -> wanted hue angle in degrees (atan2(b, a)).
 
     Returns:
-        (N, 2) latent z, and a record of the transform (angle, reflected, scale, centre).
+        (N, 2) latent z, and a record of the transform (matrix, reflected, offset, scale).
     """
     centre = layout.mean(axis=0)
-    centred = layout - centre
-
-    def angle_of(v: np.ndarray) -> float:
-        return math.atan2(v[1], v[0])
-
-    def hue_error(transform: np.ndarray) -> float:
-        error = 0.0
-        for name, hue in hues.items():
-            moved = transform @ (anchors[name] - centre)
-            delta = (math.degrees(angle_of(moved)) - hue + 180.0) % 360.0 - 180.0
-            error += abs(delta)
-        return error
-
-    blue = anchors["blue"] - centre
-    candidates = []
+    names = list(hues)
+    points = np.stack([anchors[name] for name in names]) - centre
+    wanted = np.array([hues[name] for name in names])
+    blue = names.index("blue")
+    best = None
     for reflect in (False, True):
         flip = np.diag([1.0, -1.0]) if reflect else np.eye(2)
-        turn = math.radians(hues["blue"]) - angle_of(flip @ blue)
-        rotation = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
-        candidates.append((hue_error(rotation @ flip), reflect, rotation @ flip))
-    _, reflected, transform = min(candidates, key=lambda c: c[0])
-    rotated = centred @ transform.T
-    scale = 0.5 / float(np.abs(rotated).max())
-    z = 0.5 + scale * rotated
-    return z, {"centre": centre.tolist(), "matrix": transform.tolist(), "reflected": bool(reflected), "scale": scale}
+        for degrees in range(360):
+            turn = math.radians(degrees)
+            matrix = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]]) @ flip
+            moved = (layout - centre) @ matrix.T
+            low, span = moved.min(axis=0), np.ptp(moved, axis=0)
+            ab = 255.0 * ((points @ matrix.T - low) / span) - 128.0
+            hue = np.degrees(np.arctan2(ab[:, 1], ab[:, 0]))
+            error = np.abs((hue - wanted + 180.0) % 360.0 - 180.0)
+            qualifies = error[blue] <= blue_window and np.hypot(*ab[blue]) >= min_blue_chroma
+            key = (not qualifies, float(error.sum()))
+            if best is None or key < best[0]:
+                best = (key, reflect, matrix, low, span)
+    _, reflected, matrix, low, span = best
+    z = ((layout - centre) @ matrix.T - low) / span
+    record = {"centre": centre.tolist(), "matrix": matrix.tolist(), "reflected": bool(reflected),
+              "offset": low.tolist(), "scale": (1.0 / span).tolist()}
+    return z, record
 
 
 def kde_locality(query: np.ndarray, exemplars: np.ndarray, window: float, low: float, high: float) -> np.ndarray:

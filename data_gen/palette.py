@@ -35,7 +35,9 @@ CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 def corpus_config(cfg: DictConfig) -> CorpusConfig:
     spectrum = SpectrumRanges(**{k: tuple(v) if not isinstance(v, int) else v for k, v in cfg.corpus.spectrum.items()})
-    extractor = tuple((k, cfg.features[k]) for k in ("name", "seed", "weights"))
+    from synthesis.features import FEATURES_VERSION
+
+    extractor = tuple((k, cfg.features[k]) for k in ("name", "seed", "weights")) + (("version", FEATURES_VERSION),)
     return CorpusConfig(
         exemplars=cfg.corpus.exemplars, points=cfg.corpus.points, seed=cfg.seed, spectrum=spectrum,
         fit_iterations=cfg.corpus.fit_iterations, fit_learning_rate=cfg.corpus.fit_learning_rate,

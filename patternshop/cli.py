@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 from patternshop import __version__
 
-COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette")
+COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette", "patternshop.commands.synthesize")
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130

@@ -40,6 +40,7 @@ from torch import nn
 
 from synthesis.errors import PatternshopError
 
+FEATURES_VERSION = 1  # bump when the rasteriser or a network changes: cached corpora are then rebuilt
 SPLAT_SIGMAS = (0.015, 0.01, 0.005)  # in units of a corpus domain side
 CORPUS_POINTS = 1024  # points per unit area at which features are taken
 PIXELS_PER_UNIT = 256
@@ -183,7 +184,7 @@ class FeatureExtractor:
 
     def describe(self) -> dict:
         """What built the features, for provenance records."""
-        return {"name": self.name, "seed": self.seed, "weights": self.weights, "splat_sigmas": list(SPLAT_SIGMAS),
+        return {"name": self.name, "version": FEATURES_VERSION, "seed": self.seed, "weights": self.weights, "splat_sigmas": list(SPLAT_SIGMAS),
                 "corpus_points": CORPUS_POINTS, "pixels_per_unit": PIXELS_PER_UNIT, "margin_pixels": MARGIN_PIXELS}
 
     def rasters(self, points: np.ndarray, domain: tuple[float, float], periodic: bool) -> np.ndarray:

@@ -60,7 +60,7 @@ def min_distance(points: np.ndarray) -> float:
 def gaussian_clusters(centres: np.ndarray, sizes: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
     """``sizes[i]`` points around each of the (m, 2) ``centres``, isotropic Gaussian offsets of ``std``, wrapped.
 
-    Returns (sizes.sum(), 2) points in [0, 1)^2, grouped by cluster.
+    Returns (sizes.sum(), 2) points in [0, 1)^2 in random order (a prefix is a random subset).
     """
     parents = np.repeat(np.asarray(centres, np.float64), sizes, axis=0)
-    return wrap(parents + rng.normal(0.0, std, parents.shape))
+    return rng.permutation(wrap(parents + rng.normal(0.0, std, parents.shape)))

@@ -1,0 +1,151 @@
+"""The correlation palette: a tiny build end to end, its invariants, and the shipped asset."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from data_gen.embedding import idw_encode, kde_locality, orient
+from synthesis.errors import PatternshopError
+from synthesis.palette import DEFAULT_PALETTE, LUT_SIZE, Palette, ab_to_latent, hue_chroma, latent_to_ab
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def build_small(tmp: Path, *overrides: str) -> tuple[Palette, dict]:
+    """Build the tiny palette (conf/palette_small.yaml) into ``tmp``; returns it and its record."""
+    output = tmp / "palette.npz"
+    command = [sys.executable, "-m", "data_gen.palette", "--config-name", "palette_small",
+               f"output={output}", f"cache_dir={tmp / 'cache'}", *overrides]
+    subprocess.run(command, check=True, capture_output=True, cwd=ROOT, timeout=300)
+    return Palette.load(output), json.loads(output.with_suffix(".json").read_text())
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory: pytest.TempPathFactory) -> tuple[Palette, dict, Path]:
+    tmp = tmp_path_factory.mktemp("palette")
+    palette, record = build_small(tmp)
+    return palette, record, tmp
+
+
+def test_small_build_is_a_valid_asset(small):
+    palette, record, _ = small
+    n, m = palette.exemplar_z.shape[0], len(palette.radii)
+    assert (n, m) == (40, 20)
+    assert palette.lut.shape == (LUT_SIZE, LUT_SIZE, m) and np.all(np.isfinite(palette.lut))
+    assert np.all((palette.exemplar_z >= 0) & (palette.exemplar_z <= 1))
+    np.testing.assert_allclose(palette.exemplar_z.min(axis=0), 0.0, atol=1e-6)  # normalised to fill [0, 1]^2
+    np.testing.assert_allclose(palette.exemplar_z.max(axis=0), 1.0, atol=1e-6)
+    assert palette.exemplar_points.shape == (40, 256, 2)
+    assert set(palette.presets) == {"white", "blue", "red"}
+    assert record["extractor"]["name"] == "random-cnn"
+    for key in ("stress1", "trustworthiness", "decode_within_0.05", "fit_rms_median"):
+        assert key in record["metrics"]
+    assert record["timings_s"]["total"] < 120
+
+
+def test_decoding_an_exemplar_returns_its_coordinate(small):
+    palette, _, _ = small
+    for index in range(0, 40, 5):
+        a, b = palette.decode(palette.exemplar_points[index], periodic=True)
+        np.testing.assert_allclose(ab_to_latent([a, b]), palette.exemplar_z[index], atol=1e-5)
+
+
+def test_lut_at_an_exemplar_returns_its_pcf(small):
+    palette, _, _ = small
+    spread = palette.exemplar_pcf.max() - palette.exemplar_pcf.min()
+    error = np.abs(palette.pcf_at_latent(palette.exemplar_z) - palette.exemplar_pcf).max(axis=1)
+    assert np.median(error) < 0.02 * spread
+    assert error.max() < 0.15 * spread
+
+
+def test_pcf_accepts_arrays_and_8bit_values(small):
+    palette, _, _ = small
+    a = np.array([[-128, 0], [64, 127]])
+    b = np.array([[0, -30], [127, -128]])
+    pcf = palette.pcf(a, b)
+    assert pcf.shape == (2, 2, 20)
+    np.testing.assert_allclose(pcf[1, 0], palette.lut[64 + 128, 127 + 128], rtol=1e-6)  # 8-bit = table entry
+    halfway = palette.pcf(0.5, -30.0)
+    np.testing.assert_allclose(halfway, (palette.lut[128, 98] + palette.lut[129, 98]) / 2, rtol=1e-5)
+
+
+def test_build_is_deterministic_and_resumes(small, tmp_path):
+    palette, _, tmp = small
+    chunks = sorted((tmp / "cache").glob("corpus-*/chunk-*.npz"))
+    assert len(chunks) == 4
+    kept = {path: path.stat().st_mtime_ns for path in chunks[1:]}
+    chunks[0].unlink()  # as if the build had been interrupted before this chunk
+    again, _ = build_small(tmp)
+    assert chunks[0].exists()
+    assert {path: path.stat().st_mtime_ns for path in chunks[1:]} == kept  # done chunks were not recomputed
+    for field in ("exemplar_z", "exemplar_pcf", "lut", "codes"):
+        np.testing.assert_array_equal(getattr(again, field), getattr(palette, field))
+    assert again.presets == palette.presets
+
+
+def test_idw_interpolates_exactly_at_exemplars():
+    rng = np.random.default_rng(0)
+    grid = np.stack(np.meshgrid(np.arange(6), np.arange(5)), -1).reshape(-1, 2)
+    z, values = (grid + 0.5 + 0.2 * rng.random((30, 2))) / 6, rng.random((30, 5))  # separated exemplars
+    power = kde_locality(z, z, 0.01, 3.0, 6.0)
+    assert np.all((power >= 3.0) & (power <= 6.0))
+    np.testing.assert_allclose(idw_encode(z, z, values, power), values, atol=1e-4)  # up to the 1e-10 weight floor
+    middle = idw_encode(np.array([[0.5, 0.5]]), z, values, np.array([3.0]))
+    assert np.all((middle >= values.min(axis=0)) & (middle <= values.max(axis=0)))
+
+
+def test_orientation_puts_blue_on_its_hue_and_uses_reflection():
+    rng = np.random.default_rng(1)
+    layout = rng.normal(size=(50, 2)) * [3.0, 1.0]  # elongated, like real layouts
+    anchors = {"blue": layout[0], "green": layout[1], "red": layout[2]}
+    hues = {"blue": 270.0, "green": 150.0, "red": 30.0}
+    z, record = orient(layout, anchors, hues)
+    np.testing.assert_allclose(z.min(axis=0), 0.0, atol=1e-12)
+    np.testing.assert_allclose(z.max(axis=0), 1.0, atol=1e-12)  # fills the ab square
+    hue, chroma = hue_chroma(*latent_to_ab(z[0]))
+    assert abs(hue - 270.0) <= 40.0 and chroma >= 30.0
+    mirrored, mirrored_record = orient(layout * [1, -1], {k: v * [1, -1] for k, v in anchors.items()}, hues)
+    np.testing.assert_allclose(mirrored, z, atol=1e-9)  # the same palette, found through the reflection
+    assert mirrored_record["reflected"] != record["reflected"]
+
+
+def test_missing_or_bad_asset_is_a_clear_error(tmp_path):
+    with pytest.raises(PatternshopError, match="palette not found"):
+        Palette.load(tmp_path / "none.npz")
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(PatternshopError, match="not a readable palette"):
+        Palette.load(bad)
+
+
+# --- the shipped asset ------------------------------------------------------
+shipped = pytest.mark.skipif(not DEFAULT_PALETTE.exists(), reason="no shipped palette asset")
+
+
+@shipped
+def test_shipped_asset_shapes_ranges_and_provenance():
+    palette = Palette.load()
+    assert DEFAULT_PALETTE.stat().st_size <= 20 * 2**20
+    assert palette.lut.shape == (256, 256, 20) and np.all(np.isfinite(palette.lut))
+    assert palette.lut.min() >= 0.0 and 0.5 < palette.lut.mean() < 1.5
+    assert palette.exemplar_z.shape == (1000, 2) and palette.exemplar_points.shape == (1000, 1024, 2)
+    assert {"white", "blue", "green", "red", "step"} <= set(palette.presets)
+    record = json.loads(DEFAULT_PALETTE.with_suffix(".json").read_text())
+    assert record["extractor"]["name"] == palette.extractor["name"]
+    for key in ("command", "config", "metrics", "timings_s", "versions", "commit", "built"):
+        assert key in record
+
+
+@shipped
+def test_shipped_blue_noise_is_blue():
+    from synthesis.generators import generate
+
+    palette = Palette.load()
+    hue, chroma = hue_chroma(*palette.decode(generate("blue", 4096, seed=5)))
+    assert 235.0 <= hue <= 315.0 and chroma >= 30.0
