@@ -23,11 +23,11 @@ $(STAMP): pyproject.toml
 
 demo: setup
 	@mkdir -p out
-	$(PS) preview examples/logo.tif out/logo_preview.png --scale 2
-	$(PS) preview examples/gradient.tif out/gradient_preview.png --scale 2
-	$(PS) split examples/logo.tif out/logo
-	$(PS) join out/logo.L.png out/logo_8bit.tif --bits 8
-	@echo "demo outputs in out/: previews, channel PNGs (out/logo.{L,a,b}.png), an 8-bit CIELAB TIFF"
+	$(PS) synthesize examples/logo.tif out/logo.txt --png out/logo.png --svg out/logo.svg --report out/logo.json --no-progress
+	$(PS) synthesize examples/gradient.tif out/gradient.txt --png out/gradient.png --svg out/gradient.svg --dot-sizes --report out/gradient.json --no-progress
+	$(PS) preview examples/logo.tif out/logo_map.png --scale 2
+	$(PS) palette out/palette.png
+	@echo "demo outputs in out/: logo.{txt,png,svg}, gradient.{txt,png,svg} (with dot sizes), reports (*.json), palette.png"
 
 test: setup
 	$(BIN)/python -m pytest -q

@@ -125,5 +125,7 @@ def build_corpus(config: CorpusConfig, cache_dir: str | os.PathLike, workers: in
                             np.savez(handle, **result)
                     progress.update(len(result["index"]))
     parts = [dict(np.load(path)) for path in paths]
-    return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+    corpus = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+    corpus["computed_now"] = np.int64(config.exemplars - done)  # exemplars not taken from the cache
+    return corpus
 

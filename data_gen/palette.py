@@ -142,7 +142,7 @@ def build(cfg: DictConfig) -> dict:
                          "exemplar": index, "generator": f"synthesis.generators.{name}"}
     palette = Palette(
         radii=radii, lut=lut.astype(np.float32), exemplar_z=z, exemplar_pcf=corpus["pcf"].astype(np.float32),
-        exemplar_points=corpus["points"], codes=codes, feature_mean=mean, components=components,
+        exemplar_points=corpus["points"], exemplar_spectrum=corpus["target"], codes=codes, feature_mean=mean, components=components,
         block_scale=weights, presets=presets, extractor=extractor.describe(),
     )
     output = Path(cfg.output)
@@ -183,6 +183,7 @@ def build(cfg: DictConfig) -> dict:
         "command": "python -m data_gen.palette " + " ".join(sys.argv[1:]),
         "config": OmegaConf.to_container(cfg, resolve=True),
         "corpus_key": config.key(),
+        "corpus_exemplars_computed": int(corpus["computed_now"]),  # the rest came from cache_dir
         "extractor": extractor.describe(),
         "orientation": transform,
         "presets": presets,

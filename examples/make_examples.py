@@ -1,10 +1,11 @@
 """Make the bundled example maps in ``examples/`` (settings: ``conf/examples.yaml``).
 
 * ``logo.tif`` (384 x 256): a logo-like map with varying density and three
-  correlation regions split by sharp edges: background (blue), a disc (green)
-  and a bold letter "P" (red/clustered).
+  correlation regions split by sharp edges: background (blue noise), a disc
+  (green noise) and a bold letter "P" (red, clustered) — colours are the
+  shipped palette's presets.
 * ``gradient.tif`` (256 x 256): density rising smoothly left to right, and the
-  correlation moving smoothly from blue (top) to green (bottom).
+  correlation moving smoothly from blue noise (top) to green noise (bottom).
 
 Each map is written as a 16-bit CIELAB TIFF with an sRGB preview PNG beside it.
 Usage: ``python examples/make_examples.py [key=value ...]`` (Hydra overrides).
@@ -21,6 +22,7 @@ from omegaconf import DictConfig
 
 from synthesis.labmap import LabMap
 from synthesis.mapio import write_map, write_preview
+from synthesis.palette import load_palette
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
@@ -48,32 +50,45 @@ def letter_p(x: np.ndarray, y: np.ndarray, left: float, top: float, size: float)
     return stem | bowl | bars
 
 
-def make_logo(cfg: DictConfig, colors: DictConfig) -> LabMap:
+def resolve_colors(colors: DictConfig) -> dict[str, np.ndarray]:
+    """Colour names -> (a, b): palette preset names are looked up, [a, b] pairs kept."""
+    presets = load_palette().preset_ab()
+    resolved = {}
+    for name, value in colors.items():
+        if isinstance(value, str):
+            if value not in presets:
+                raise SystemExit(f"unknown preset '{value}' (palette presets: {', '.join(presets)})")
+            value = presets[value]
+        resolved[name] = np.asarray(value, np.float64)
+    return resolved
+
+
+def make_logo(cfg: DictConfig, colors: dict[str, np.ndarray]) -> LabMap:
     x, y = pixel_centres(cfg.width, cfg.height)
     w = x.max() + x.min()
     lo, hi = cfg.background_density
     density = lo + (hi - lo) * x / w
-    ab = np.broadcast_to(np.asarray(colors.blue, np.float64), x.shape + (2,)).copy()
+    ab = np.broadcast_to(colors["blue"], x.shape + (2,)).copy()
 
     centre, radius = (0.3, 0.33), 0.24
     r = np.hypot(x - centre[0], y - centre[1]) / radius
     disc = r <= 1.0
     rim, core = cfg.disc_density
     density[disc] = (core + (rim - core) * r**2)[disc]
-    ab[disc] = colors.green
+    ab[disc] = colors["green"]
 
     letter = letter_p(x, y, left=0.62, top=0.13, size=0.42)
     density[letter] = cfg.letter_density
-    ab[letter] = colors.red
+    ab[letter] = colors["red"]
     return lab_from_parts(density, ab)
 
 
-def make_gradient(cfg: DictConfig, colors: DictConfig) -> LabMap:
+def make_gradient(cfg: DictConfig, colors: dict[str, np.ndarray]) -> LabMap:
     x, y = pixel_centres(cfg.width, cfg.height)
     lo, hi = cfg.density
     density = lo + (hi - lo) * x / (x.max() + x.min())
     t = (y / (y.max() + y.min()))[..., None]
-    ab = (1.0 - t) * np.asarray(colors.blue, np.float64) + t * np.asarray(colors.green, np.float64)
+    ab = (1.0 - t) * colors["blue"] + t * colors["green"]
     return lab_from_parts(density, ab)
 
 
@@ -82,7 +97,8 @@ def main(overrides: list[str]) -> None:
         cfg = compose(config_name="examples", overrides=overrides)
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name, lab_map in (("logo", make_logo(cfg.logo, cfg.colors)), ("gradient", make_gradient(cfg.gradient, cfg.colors))):
+    colors = resolve_colors(cfg.colors)
+    for name, lab_map in (("logo", make_logo(cfg.logo, colors)), ("gradient", make_gradient(cfg.gradient, colors))):
         write_map(lab_map, out_dir / f"{name}.tif", bits=cfg.bits)
         write_preview(lab_map, out_dir / f"{name}_preview.png", scale=cfg.preview_scale)
         print(f"wrote {out_dir / name}.tif and {name}_preview.png ({lab_map.width}x{lab_map.height})")

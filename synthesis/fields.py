@@ -112,7 +112,7 @@ class MapFields:
         """(H, W, m) ``int lambda(y) N(|y - x| / s(x); rho, sigma) H(y, x) dy`` over the domain.
 
         Polar quadrature around every pixel centre x in units of s(x), with
-        lambda = 0 outside the domain (zero padding). The result is the ratio to
+        lambda = 0 outside the domain. The result is the ratio to
         the same quadrature of an unbounded uniform field times the exact
         unbounded value ``lambda(x) s(x)^2 E(rho)``, so quadrature error cancels
         wherever the neighbourhood is uniform and only edges and borders move it.
@@ -142,8 +142,9 @@ class MapFields:
         for start in range(0, len(base), chunk):
             block = slice(start, start + chunk)
             grid = base[block, None, :] + flat_spacing[block] * offsets[None]  # (P, Q, 2)
-            sampled = F.grid_sample(fields, grid[None], mode="bilinear", padding_mode="zeros", align_corners=False)[0]
-            weight = sampled[0]  # lambda(y), 0 outside the domain
+            sampled = F.grid_sample(fields, grid[None], mode="bilinear", padding_mode="border", align_corners=False)[0]
+            inside = (grid.abs() <= 1.0).all(dim=-1)
+            weight = sampled[0] * inside  # lambda(y), 0 outside the domain
             if self.guide:
                 weight = weight * guide_similarity(sampled[1:].permute(1, 2, 0), flat_latent[block])
             out[block] = (weight @ kernel_t) / (free * flat_intensity[block])

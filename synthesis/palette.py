@@ -28,7 +28,7 @@ from synthesis.errors import PatternshopError
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_PALETTE = ASSET_DIR / "palette.npz"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: exemplar_spectrum added
 LUT_SIZE = 256
 
 
@@ -57,6 +57,7 @@ class Palette:
         exemplar_z: (N, 2) latent coordinates of the corpus exemplars.
         exemplar_pcf: (N, m) their PCFs.
         exemplar_points: (N, P, 2) their point sets on the unit torus.
+        exemplar_spectrum: (N, B) the target radial power spectra they realise.
         codes: (N, k) PCA-reduced perceptual features of the exemplars.
         feature_mean, components, block_scale: the feature reduction
             ``code = (features * block_weights - mean) @ components.T``.
@@ -69,6 +70,7 @@ class Palette:
     exemplar_z: np.ndarray
     exemplar_pcf: np.ndarray
     exemplar_points: np.ndarray
+    exemplar_spectrum: np.ndarray
     codes: np.ndarray
     feature_mean: np.ndarray
     components: np.ndarray
@@ -94,6 +96,7 @@ class Palette:
                     exemplar_z=data["exemplar_z"].astype(np.float64),
                     exemplar_pcf=data["exemplar_pcf"].astype(np.float32),
                     exemplar_points=data["exemplar_points"].astype(np.float64) / 65535.0,
+                    exemplar_spectrum=data["exemplar_spectrum"].astype(np.float64),
                     codes=data["codes"].astype(np.float32),
                     feature_mean=data["feature_mean"].astype(np.float32),
                     components=data["components"].astype(np.float32),
@@ -118,6 +121,7 @@ class Palette:
                     exemplar_z=self.exemplar_z.astype(np.float32),
                     exemplar_pcf=self.exemplar_pcf.astype(np.float32),
                     exemplar_points=np.rint(np.clip(self.exemplar_points, 0, 1) * 65535).astype(np.uint16),
+                    exemplar_spectrum=self.exemplar_spectrum.astype(np.float32),
                     codes=self.codes.astype(np.float32),
                     feature_mean=self.feature_mean.astype(np.float32),
                     components=self.components.astype(np.float16),

@@ -15,6 +15,7 @@ SUPERSAMPLE = 3
 POINTS_PER_CELL = 110
 BACKGROUND_L = 88.0
 MARGIN = 56
+LUT_SIDE = 128  # resolution of the map behind the continuous palette
 
 
 def _cell_colour(z: np.ndarray) -> tuple[int, int, int]:
@@ -64,11 +65,30 @@ def draw_palette(palette: Palette, path: str | os.PathLike, grid: int = 9, cell:
         image.save(tmp, format="PNG")
 
 
-def _annotate(draw: ImageDraw.ImageDraw, palette: Palette, grid: int, cell: int) -> None:
+def draw_continuous_palette(palette: Palette, path: str | os.PathLike, size: int = 768, points: int = 20_000, seed: int = 0) -> None:
+    """Write the continuous palette (paper Fig. 4): one synthesised pattern whose correlation
+    varies over the ab plane (a left to right, b bottom to top) at constant density."""
+    from synthesis.render import rasterize_dots
+    from synthesis.synthesize import synthesize
+
+    z = (np.arange(LUT_SIDE) + 0.5) / LUT_SIDE
+    za, zb = np.meshgrid(z, 1.0 - z)
+    lab = np.stack([np.full_like(za, 50.0), latent_to_ab(za), latent_to_ab(zb)], axis=-1)
+    result = synthesize(LabMap(lab), n=points, palette=palette, seed=seed)
+    coverage = rasterize_dots(result.points, size)
+    image = Image.new("RGB", (size + 2 * MARGIN, size + 2 * MARGIN), (255, 255, 255))
+    image.paste(Image.fromarray(np.rint(255 * (1 - coverage)).astype(np.uint8)).convert("RGB"), (MARGIN, MARGIN))
+    _annotate(ImageDraw.Draw(image), palette, size, 1, title="Patternshop continuous palette: one pattern, correlation varying over (a, b)")
+    with atomic_path(path) as tmp:
+        image.save(tmp, format="PNG")
+
+
+def _annotate(draw: ImageDraw.ImageDraw, palette: Palette, grid: int, cell: int,
+              title: str = "Patternshop correlation palette (CIELAB a, b)") -> None:
     """Axes ticks and labels, title, and a ring with the name of every preset."""
     font = ImageFont.load_default(size=13)
     size = grid * cell
-    draw.text((MARGIN, 14), "Patternshop correlation palette (CIELAB a, b)", fill=(0, 0, 0), font=font)
+    draw.text((MARGIN, 14), title, fill=(0, 0, 0), font=font)
     for value in (-128, -64, 0, 64, 127):
         z = ab_to_latent(value)
         x = MARGIN + z * size

@@ -23,6 +23,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     palette.add_argument("--list", action="store_true", help="print the presets as JSON and exit")
     palette.add_argument("--grid", type=int, default=9, metavar="N", help="cells per side (default 9)")
     palette.add_argument("--cell", type=int, default=112, metavar="PX", help="cell size in pixels (default 112)")
+    palette.add_argument("--continuous", action="store_true",
+                         help="draw one synthesised pattern whose correlation varies continuously over the ab plane (paper Fig. 4)")
+    palette.add_argument("--points", type=int, default=20_000, metavar="N", help="points of the continuous picture (default 20000)")
     palette.add_argument("--palette", metavar="FILE", help="palette asset (default: the shipped one)")
     palette.set_defaults(func=run_palette)
 
@@ -54,10 +57,13 @@ def run_palette(args: argparse.Namespace) -> None:
         raise PatternshopError("give an output .png (or --list)")
     if args.grid < 2 or args.cell < 32:
         raise PatternshopError("--grid must be >= 2 and --cell >= 32")
-    from synthesis.palette_image import draw_palette
+    from synthesis.palette_image import draw_continuous_palette, draw_palette
 
     output = check_output(args.output, suffixes=(".png",))
-    draw_palette(palette, output, grid=args.grid, cell=args.cell)
+    if args.continuous:
+        draw_continuous_palette(palette, output, size=args.grid * args.cell, points=args.points)
+    else:
+        draw_palette(palette, output, grid=args.grid, cell=args.cell)
     print(f"wrote {output}", file=sys.stderr)
 
 
