@@ -21,6 +21,7 @@ import hashlib
 import json
 import os
 import multiprocessing
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -54,6 +55,7 @@ class CorpusConfig:
     fit_iterations: int = 200
     fit_learning_rate: float = 2e-3
     chunk: int = 25
+    format: int = 2  # chunk contents; bump to invalidate old caches
     extractor: tuple[tuple[str, object], ...] = (("name", "random-cnn"), ("seed", 0), ("weights", None), ("version", 1))
 
     def key(self) -> str:
@@ -85,8 +87,10 @@ def _make_chunk(config: CorpusConfig, indices: list[int]) -> dict[str, np.ndarra
     torch.set_num_threads(1)
     extractor = FeatureExtractor(**{k: v for k, v in config.extractor if k != "version"})
     spectrum = RadialSpectrum(config.points, config.spectrum.bins)
-    out: dict[str, list] = {"index": [], "target": [], "points": [], "realised": [], "fit_rms": [], "pcf": [], "features": []}
+    out: dict[str, list] = {"index": [], "target": [], "points": [], "realised": [], "fit_rms": [], "pcf": [],
+                            "features": [], "seconds": []}
     for index in indices:
+        start = time.perf_counter()
         rng = np.random.default_rng([config.seed, index])
         target = random_spectrum(rng, config.spectrum)
         fit = fit_spectrum(target, config.points, rng, config.fit_iterations, config.fit_learning_rate, spectrum)
@@ -97,6 +101,7 @@ def _make_chunk(config: CorpusConfig, indices: list[int]) -> dict[str, np.ndarra
         out["fit_rms"].append(fit.rms_error)
         out["pcf"].append(stationary_pcf(fit.points, periodic=True))
         out["features"].append(extractor(fit.points, (1.0, 1.0), periodic=True))
+        out["seconds"].append(time.perf_counter() - start)
     return {name: np.asarray(values) for name, values in out.items()}
 
 
@@ -104,7 +109,9 @@ def build_corpus(config: CorpusConfig, cache_dir: str | os.PathLike, workers: in
     """All exemplars, from the chunk cache where present; missing chunks are computed in parallel.
 
     Returns arrays ``index (N,)``, ``target (N, B)``, ``points (N, P, 2)``,
-    ``realised (N, B)``, ``fit_rms (N,)``, ``pcf (N, m)``, ``features (N, D)``.
+    ``realised (N, B)``, ``fit_rms (N,)``, ``pcf (N, m)``, ``features (N, D)``,
+    ``seconds (N,)`` (worker time per exemplar, whenever it was computed) and
+    ``computed_now`` (how many exemplars this call computed rather than read).
     """
     folder = Path(cache_dir) / f"corpus-{config.key()}"
     folder.mkdir(parents=True, exist_ok=True)

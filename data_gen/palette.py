@@ -184,6 +184,7 @@ def build(cfg: DictConfig) -> dict:
         "config": OmegaConf.to_container(cfg, resolve=True),
         "corpus_key": config.key(),
         "corpus_exemplars_computed": int(corpus["computed_now"]),  # the rest came from cache_dir
+        "corpus_worker_seconds": round(float(corpus["seconds"].sum()), 1),  # realise + measure, all exemplars
         "extractor": extractor.describe(),
         "orientation": transform,
         "presets": presets,

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -24,6 +25,7 @@ COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141
 
 DESCRIPTION = """\
 Edit point patterns as images. A map is a CIELAB image: L is the density
@@ -87,6 +89,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.showwarning = _show_warning
         try:
             return int(args.func(args) or 0)
+        except BrokenPipeError:  # e.g. `patternshop analyze --json x | head`: the reader left
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - keep the interpreter from complaining at exit
+            return EXIT_BROKEN_PIPE
         except (PatternshopError, OSError) as exc:
             if args.debug:
                 raise

@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
-from synthesis.pcf import KERNEL_SIGMA, neighbour_cutoff, pcf_radii, radial_kernel, uniform_expectation
+from synthesis.pcf import KERNEL_SIGMA, neighbour_cutoff, pcf_radii, r_max, radial_kernel, uniform_expectation
 
 GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dimension
 DENSITY_FLOOR = 1e-3  # relative to the mean density: keeps spacings finite in white areas
@@ -94,7 +94,7 @@ class MapFields:
         w, h = lab_map.domain
         density = np.maximum(density, DENSITY_FLOOR * density.mean())
         intensity = n * density / (density.mean() * w * h)
-        spacing = 2.0 * np.sqrt(1.0 / (2.0 * math.sqrt(3.0) * intensity))
+        spacing = r_max(intensity)  # points per unit area -> local r_max
         radii = pcf_radii()
         latent = lab_map.latent().astype(np.float32)
         target = palette.pcf_at_latent(latent)

@@ -28,9 +28,9 @@ KERNEL_SIGMA = 0.26  # in units of r_max
 NEIGHBOURS = 50
 
 
-def r_max(n: float, area: float = 1.0) -> float:
-    """Largest nearest-neighbour distance of n points in ``area`` (hexagonal packing)."""
-    return 2.0 * math.sqrt(area / (2.0 * math.sqrt(3.0) * n))
+def r_max(n: float | np.ndarray, area: float = 1.0) -> float | np.ndarray:
+    """Largest nearest-neighbour distance of n points in ``area`` (hexagonal packing); works on arrays."""
+    return 2.0 * np.sqrt(area / (2.0 * math.sqrt(3.0) * n))
 
 
 def pcf_radii(bins: int = PCF_BINS, radius_range: tuple[float, float] = RADIUS_RANGE) -> np.ndarray:

@@ -149,3 +149,40 @@ def test_shipped_blue_noise_is_blue():
     palette = Palette.load()
     hue, chroma = hue_chroma(*palette.decode(generate("blue", 4096, seed=5)))
     assert 235.0 <= hue <= 315.0 and chroma >= 30.0
+
+
+@shipped
+def test_cli_palette_list_picture_and_analyze(tmp_path, capsys):
+    from patternshop import cli
+    from synthesis.generators import generate
+    from synthesis.points import PointSet, write_points
+
+    assert cli.main(["palette", "--list"]) == 0
+    presets = json.loads(capsys.readouterr().out)
+    assert {"white", "blue", "green", "red", "step"} <= set(presets) and set(presets["blue"]) == {"a", "b"}
+
+    picture = tmp_path / "palette.png"
+    assert cli.main(["palette", str(picture), "--grid", "4", "--cell", "48"]) == 0
+    continuous = tmp_path / "continuous.png"
+    assert cli.main(["palette", str(continuous), "--continuous", "--points", "1500", "--grid", "4", "--cell", "48"]) == 0
+    from PIL import Image
+
+    for path in (picture, continuous):
+        with Image.open(path) as image:
+            assert image.size == (4 * 48 + 112, 4 * 48 + 112)
+
+    points = tmp_path / "red.txt"
+    write_points(PointSet(generate("red", 3000, seed=2)), points)
+    capsys.readouterr()
+    assert cli.main(["analyze", str(points), "--json", "--plot", str(tmp_path / "plot.png")]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert {"a", "b", "nearest_preset", "r", "pcf"} <= set(result) and len(result["pcf"]) == 20
+    assert result["nearest_preset"] == "red" and result["pcf"][0] > 2.0  # clustered: many close pairs
+    assert (tmp_path / "plot.png").stat().st_size > 0
+
+
+def test_cli_palette_needs_an_output(capsys):
+    from patternshop import cli
+
+    assert cli.main(["palette"]) == 2
+    assert "give an output" in capsys.readouterr().err

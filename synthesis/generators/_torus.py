@@ -13,6 +13,7 @@ import operator
 import numpy as np
 from scipy.spatial import cKDTree
 
+from synthesis import pcf
 from synthesis.errors import PatternshopError
 
 
@@ -34,7 +35,7 @@ def mean_spacing(n: int) -> float:
 
 def r_max(n: int) -> float:
     """Distance ``2 sqrt(1/(2 sqrt(3) n))`` between n points in a hexagonal packing of the torus."""
-    return 2.0 * math.sqrt(1.0 / (2.0 * math.sqrt(3.0) * max(n, 1)))
+    return float(pcf.r_max(max(n, 1)))
 
 
 def wrap(points: np.ndarray) -> np.ndarray:
