@@ -22,6 +22,8 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from synthesis.errors import PatternshopError
+
 PCF_BINS = 20
 RADIUS_RANGE = (0.1, 2.0)  # in units of r_max
 KERNEL_SIGMA = 0.26  # in units of r_max
@@ -91,7 +93,7 @@ def stationary_pcf(
         inside = np.all((points >= margin) & (points <= np.array([w, h]) - margin), axis=1)
         centres = points[inside]
         if len(centres) < 10:
-            raise ValueError(f"only {len(centres)} of {n} points lie far enough from the border to estimate a PCF")
+            raise PatternshopError(f"only {len(centres)} of {n} points lie far enough from the border to estimate a PCF")
     k = min(neighbours + 1, n)
     distance, _ = tree.query(centres, k=k, distance_upper_bound=cutoff * spacing)
     distance = distance[:, 1:] / spacing  # drop each centre itself
