@@ -12,7 +12,7 @@ Schedules:
   step of 0.02 spacings.
 * ``fast`` (default) — every point is a centre at every iteration (a full,
   low-variance gradient), neighbour lists and the fields at the points are
-  refreshed every 5 iterations instead of every step, and the step decays
+  refreshed every 10 iterations instead of every step, and the step decays
   from 0.15 to 0.005 spacings along a cosine over 250 iterations.
 """
 
