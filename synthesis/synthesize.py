@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from synthesis.edgepcf import Neighbourhoods, estimate, find_neighbourhoods, loss_and_gradient
@@ -90,11 +91,12 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator) -> np.ndar
     return (np.stack([col, row], axis=1) + rng.random((n, 2))) / side
 
 
-def _jittered_centres(xy: np.ndarray, domain: tuple[float, float], grid: int, rng: np.random.Generator, tree) -> torch.Tensor:  # noqa: ANN001
+def _jittered_centres(xy: np.ndarray, domain: tuple[float, float], grid: int, rng: np.random.Generator) -> torch.Tensor:
+    """Indices of the points nearest to ``grid`` x ``grid`` jittered positions (the paper's Monte Carlo centres)."""
     w, h = domain
     cells = np.stack(np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij"), -1).reshape(-1, 2)
     positions = (cells + rng.random(cells.shape)) / grid * [w, h]
-    _, nearest = tree.query(positions)
+    _, nearest = cKDTree(xy).query(positions)
     return torch.from_numpy(np.unique(nearest).astype(np.int64))
 
 
@@ -142,14 +144,12 @@ def synthesize(
     losses: list[float] = []
     hood: Neighbourhoods | None = None
     bar = tqdm(total=plan.iterations, desc=f"synthesis ({plan.name}, n={n})", unit="it", disable=not progress, leave=False)
-    from scipy.spatial import cKDTree
-
     for step in range(plan.iterations):
         if hood is None or step % plan.refresh == 0:
             if plan.all_centres:
                 centres = torch.arange(n)
             else:
-                centres = _jittered_centres(xy.numpy(), (w, h), plan.jitter_grid, rng, cKDTree(xy.numpy()))
+                centres = _jittered_centres(xy.numpy(), (w, h), plan.jitter_grid, rng)
             hood = find_neighbourhoods(fields, xy, centres)
             spacing = fields.at(xy)["spacing"][:, None]
         loss, gradient = loss_and_gradient(fields, xy, hood)
