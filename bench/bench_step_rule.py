@@ -16,8 +16,7 @@ import torch
 
 from common import save_results  # bench/ is on sys.path when run as a script
 
-from data_gen.palette import weighted
-from synthesis.features import FeatureExtractor
+from synthesis.features import FeatureExtractor, scale_blocks
 from synthesis.labmap import LabMap
 from synthesis.palette import load_palette
 from synthesis.pcf import r_max, stationary_pcf
@@ -35,8 +34,8 @@ def main() -> None:
     spacing = r_max(N)
 
     def errors(points: np.ndarray, index: int, target: np.ndarray) -> tuple[float, float]:
-        own = weighted(extractor(palette.exemplar_points[index], periodic=True), palette.block_scale)
-        mine = weighted(extractor(points, periodic=False), palette.block_scale)
+        own = scale_blocks(extractor(palette.exemplar_points[index], periodic=True), palette.block_scale)
+        mine = scale_blocks(extractor(points, periodic=False), palette.block_scale)
         return float(np.abs(own - mine).sum()), float(np.abs(stationary_pcf(points, periodic=False) - target).mean())
 
     rows = []

@@ -26,7 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 from data_gen.corpus import CorpusConfig, SpectrumRanges, build_corpus
 from data_gen.embedding import idw_encode, kde_locality, l1_distances, mds_layout, orient, stress1, trustworthiness
 from synthesis.atomic import atomic_write_text
-from synthesis.features import block_slices
+from synthesis.features import block_slices, scale_blocks
 from synthesis.palette import LUT_SIZE, Palette, hue_chroma, latent_to_ab
 from synthesis.pcf import pcf_radii
 
@@ -49,13 +49,6 @@ def block_weights(features: np.ndarray) -> np.ndarray:
     """(6,) weights giving every Gram block (layer x splat size) the same mean L1 norm."""
     norms = np.array([np.abs(features[:, block]).sum(axis=1).mean() for block in block_slices()])
     return (norms.mean() / np.maximum(norms, 1e-12)).astype(np.float32)
-
-
-def weighted(features: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    out = np.array(features, np.float32, copy=True)
-    for block, weight in zip(block_slices(), weights):
-        out[..., block] *= weight
-    return out
 
 
 def pca(features: np.ndarray, components: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -107,7 +100,7 @@ def build(cfg: DictConfig) -> dict:
 
     torch.set_num_threads(max(1, cfg.workers))
     weights = block_weights(corpus["features"])
-    features = weighted(corpus["features"], weights)
+    features = scale_blocks(corpus["features"], weights)
     dissimilarity = l1_distances(features)
     lap("dissimilarities")
     layout = mds_layout(dissimilarity, cfg.seed, cfg.embedding.mds_inits, cfg.embedding.mds_max_iter)
@@ -117,7 +110,7 @@ def build(cfg: DictConfig) -> dict:
     extractor = FeatureExtractor(cfg.features.name, cfg.features.seed, cfg.features.weights)
 
     def nearest(points: np.ndarray, periodic: bool = True) -> int:
-        code = (weighted(extractor(points, (1.0, 1.0), periodic), weights) - mean) @ components.T
+        code = (scale_blocks(extractor(points, (1.0, 1.0), periodic), weights) - mean) @ components.T
         return int(np.argmin(np.sum((codes - code) ** 2, axis=1)))
 
     preset_points = {name: generate(name, config.points, cfg.presets.seed) for name in cfg.presets.names}

@@ -218,6 +218,14 @@ class FeatureExtractor:
         return torch.cat(grams, dim=1).reshape(-1).numpy()
 
 
+def scale_blocks(features: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Copy of features (..., 61440) with each of the 6 Gram blocks multiplied by its weight (6,)."""
+    scaled = np.array(features, np.float32, copy=True)
+    for block, weight in zip(block_slices(), weights):
+        scaled[..., block] *= weight
+    return scaled
+
+
 def block_slices() -> list[slice]:
     """Slices of the 2 x 3 Gram blocks (layer, splat size) in a feature vector."""
     slices, start = [], 0

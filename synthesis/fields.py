@@ -51,6 +51,16 @@ def sample_grid(grid: torch.Tensor, xy: torch.Tensor, side_px: int) -> torch.Ten
     return top * (1 - tr) + bottom * tr
 
 
+def _at_most(lab_map: LabMap, side: int) -> LabMap:
+    """The map area-averaged so its longer side has at most ``side`` pixels (same domain)."""
+    longest = max(lab_map.width, lab_map.height)
+    if longest <= side:
+        return lab_map
+    size = (max(1, round(lab_map.height * side / longest)), max(1, round(lab_map.width * side / longest)))
+    lab = torch.from_numpy(np.array(lab_map.lab)).permute(2, 0, 1)[None]
+    return LabMap(F.interpolate(lab, size=size, mode="area")[0].permute(1, 2, 0).numpy())
+
+
 def guide_similarity(z_a: torch.Tensor, z_b: torch.Tensor, bandwidth: float = GUIDE_BANDWIDTH) -> torch.Tensor:
     """Guidance term H = exp(-|z_a - z_b|^2 / (2 bandwidth)) over the last axis (latent z)."""
     return torch.exp(-((z_a - z_b) ** 2).sum(-1) / (2.0 * bandwidth))
@@ -85,13 +95,19 @@ class MapFields:
 
     @classmethod
     def build(cls, lab_map: LabMap, n: int, palette: Palette, guide: bool = True, sigma: float = KERNEL_SIGMA) -> MapFields:
-        """Precompute every field of ``lab_map`` for ``n`` points (``guide=False``: no guidance term)."""
+        """Precompute every field of ``lab_map`` for ``n`` points (``guide=False``: no guidance term).
+
+        Maps larger than :data:`FIELD_MAX_SIDE` pixels per side are area-averaged
+        down first; the fields are smooth on that scale and the denominator's
+        cost grows with the pixel count.
+        """
+        w, h = lab_map.domain  # of the original map: resampling rounds the pixel counts
+        lab_map = _at_most(lab_map, FIELD_MAX_SIDE)
         density = lab_map.density().astype(np.float64)
         if not np.any(density > 0):
             raise PatternshopError("the map is white everywhere: there is nothing to place points on")
         if n < 1:
             raise PatternshopError(f"point count must be at least 1, got {n}")
-        w, h = lab_map.domain
         density = np.maximum(density, DENSITY_FLOOR * density.mean())
         intensity = n * density / (density.mean() * w * h)
         spacing = r_max(intensity)  # points per unit area -> local r_max

@@ -155,11 +155,9 @@ class Palette:
 
     def reduce(self, features: np.ndarray) -> np.ndarray:
         """Raw features (..., 61440) -> PCA codes (..., k)."""
-        from synthesis.features import block_slices
+        from synthesis.features import scale_blocks
 
-        scaled = np.array(features, np.float32, copy=True)
-        for block, scale in zip(block_slices(), self.block_scale):
-            scaled[..., block] *= scale
+        scaled = scale_blocks(features, self.block_scale)
         return (scaled - self.feature_mean) @ self.components.T
 
     def nearest_exemplar(self, points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = False) -> int:

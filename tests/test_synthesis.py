@@ -141,3 +141,15 @@ def test_cli_synthesize_white_map_is_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "white everywhere" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "p.txt").exists()
+
+
+def test_large_maps_are_averaged_down_for_the_fields():
+    palette = load_palette()
+    lab = np.zeros((400, 600, 3), np.float32)
+    lab[:, :300] = [80.0, *palette.preset_ab()["blue"]]
+    lab[:, 300:] = [40.0, *palette.preset_ab()["blue"]]
+    fields = MapFields.build(LabMap(lab), 2000, palette)
+    assert fields.intensity.shape[:2] == (171, 256) and fields.side_px == 256
+    assert fields.domain == pytest.approx((1.0, 2.0 / 3.0))
+    left, right = fields.intensity[85, 10, 0], fields.intensity[85, 245, 0]
+    assert float(right / left) == pytest.approx(3.0, rel=1e-3)  # density 0.2 | 0.6
