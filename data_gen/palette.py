@@ -12,26 +12,20 @@ metrics. Writes the asset (``output``) and a provenance record beside it
 from __future__ import annotations
 
 import json
-import os
-import platform
-import subprocess
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.corpus import CorpusConfig, SpectrumRanges, build_corpus
+from data_gen.provenance import compose_config, git_commit, machine, utc_now, versions
 from data_gen.embedding import idw_encode, kde_locality, l1_distances, mds_layout, orient, stress1, trustworthiness
 from synthesis.atomic import atomic_write_text
 from synthesis.features import block_slices, scale_blocks
 from synthesis.palette import LUT_SIZE, Palette, hue_chroma, latent_to_ab
 from synthesis.pcf import pcf_radii
-
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
-
 
 def corpus_config(cfg: DictConfig) -> CorpusConfig:
     spectrum = SpectrumRanges(**{k: tuple(v) if not isinstance(v, int) else v for k, v in cfg.corpus.spectrum.items()})
@@ -58,22 +52,6 @@ def pca(features: np.ndarray, components: int, seed: int) -> tuple[np.ndarray, n
     model = PCA(n_components=min(components, len(features) - 1), svd_solver="randomized", random_state=seed)
     codes = model.fit_transform(features)
     return model.mean_.astype(np.float32), model.components_.astype(np.float32), codes.astype(np.float32), float(model.explained_variance_ratio_.sum())
-
-
-def git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=CONF_DIR).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def versions() -> dict:
-    import finufft
-    import sklearn
-    import torch
-
-    return {"python": platform.python_version(), "numpy": np.__version__, "torch": torch.__version__,
-            "finufft": getattr(finufft, "__version__", "unknown"), "scikit-learn": sklearn.__version__}
 
 
 def build(cfg: DictConfig) -> dict:
@@ -185,8 +163,8 @@ def build(cfg: DictConfig) -> dict:
         "timings_s": timings,
         "versions": versions(),
         "commit": git_commit(),
-        "built": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "built": utc_now(),
+        "machine": machine(),
         "asset_bytes": output.stat().st_size,
     }
     atomic_write_text(output.with_suffix(".json"), json.dumps(record, indent=2) + "\n")
@@ -195,17 +173,7 @@ def build(cfg: DictConfig) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     """Parse Hydra overrides (``--config-name NAME`` picks another config) and build."""
-    from hydra import compose, initialize_config_dir
-
-    args = list(sys.argv[1:] if argv is None else argv)
-    name = "palette"
-    if "--config-name" in args:
-        at = args.index("--config-name")
-        name = args[at + 1]
-        del args[at : at + 2]
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(config_name=name, overrides=args)
-    record = build(cfg)
+    record = build(compose_config("palette", argv))
     print(json.dumps({"metrics": record["metrics"], "presets": record["presets"], "timings_s": record["timings_s"]}, indent=2))
 
 

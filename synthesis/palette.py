@@ -30,6 +30,8 @@ ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_PALETTE = ASSET_DIR / "palette.npz"
 FORMAT_VERSION = 2  # 2: exemplar_spectrum added
 LUT_SIZE = 256
+POPULATED_RADIUS = 0.03  # latent distance to the nearest exemplar within which a colour counts as populated
+POPULATED_GRID = 64  # cells per side of the grid the populated region is sampled on
 
 
 def latent_to_ab(z: np.ndarray) -> np.ndarray:
@@ -169,6 +171,40 @@ class Palette:
         """Chroma (a, b) of a stationary pattern, points (n, 2) in [0, w] x [0, h], at any density."""
         a, b = latent_to_ab(self.exemplar_z[self.nearest_exemplar(points, domain, periodic)])
         return float(a), float(b)
+
+    # --- the populated region ----------------------------------------------
+    @functools.cached_property
+    def _populated_cells(self):  # noqa: ANN202 - (centres (k, 2), cKDTree), built lazily
+        from scipy.spatial import cKDTree
+
+        side = POPULATED_GRID
+        centres = (np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"), -1).reshape(-1, 2) + 0.5) / side
+        distance, _ = cKDTree(self.exemplar_z).query(centres)
+        centres = centres[distance <= POPULATED_RADIUS]
+        return centres, cKDTree(centres)
+
+    def is_populated(self, z: np.ndarray) -> np.ndarray:
+        """(...) bool: latent z (..., 2) lies within :data:`POPULATED_RADIUS` of a corpus exemplar."""
+        from scipy.spatial import cKDTree
+
+        distance, _ = cKDTree(self.exemplar_z).query(np.asarray(z, np.float64).reshape(-1, 2))
+        return (distance <= POPULATED_RADIUS).reshape(np.shape(z)[:-1])
+
+    def snap_to_populated(self, z: np.ndarray) -> np.ndarray:
+        """Latents z (..., 2) with each unpopulated one moved to the nearest populated grid cell centre."""
+        z = np.asarray(z, np.float64)
+        flat = z.reshape(-1, 2).copy()
+        outside = ~self.is_populated(flat)
+        if outside.any():
+            centres, tree = self._populated_cells
+            flat[outside] = centres[tree.query(flat[outside])[1]]
+        return flat.reshape(z.shape)
+
+    def sample_latents(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """(count, 2) latents uniform over the populated region (random cells of a 64 x 64 grid, jittered within)."""
+        centres, _ = self._populated_cells
+        z = centres[rng.integers(len(centres), size=count)] + (rng.random((count, 2)) - 0.5) / POPULATED_GRID
+        return self.snap_to_populated(np.clip(z, 0.0, 1.0))
 
     # --- presets ----------------------------------------------------------
     def preset_ab(self) -> dict[str, tuple[float, float]]:

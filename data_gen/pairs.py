@@ -1,0 +1,280 @@
+"""Training pairs for the network: ``python -m data_gen.pairs dataset=procedural num_items=2000``.
+
+Pairs are made in reverse (SPEC §2.4): a dataset's maker draws the target
+map (:mod:`data_gen.makers`), the map is quantised to 8 bits (what is stored
+is exactly what was synthesised), the synthesiser places
+``n = points_per_ink * mean density`` points on it, and the points are
+rasterised by :func:`synthesis.raster.point_raster`, the function inference
+uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
+(:mod:`data_gen.shards`).
+
+* Resumable: a finished item is written at once (``parts/``), a shard as soon
+  as all its items are done; a rerun skips both. A bad source is recorded as
+  skipped (with the reason) and never retried or fatal.
+* Sharded for clusters: ``shard=i num_shards=N`` makes the shard files whose
+  number is i modulo N; every machine writes into the same folder (or copy
+  the files together), and each run rebuilds the manifest from the shards present.
+* Deterministic: item i uses the random stream ``(seed, i)``, whatever the
+  number of workers or shards.
+
+Settings: ``conf/pairs.yaml`` and ``conf/dataset/*.yaml``; any value can be
+overridden (``workers=2 synthesis.points_per_ink=50000 out_dir=/data/pairs``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import multiprocessing
+import sys
+import time
+from collections import defaultdict
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from data_gen.makers import MapMaker, SourceError, build_maker
+from data_gen.provenance import compose_config, file_sha256, git_commit, machine, utc_now
+from data_gen.shards import PARTS, Pairs, map_to_target, part_path, read_manifest, read_shard, shard_path, target_to_map, write_manifest
+from synthesis.atomic import atomic_write_text
+from synthesis.errors import PatternshopError
+
+FORMAT = 1  # pair folder layout (data_gen.shards); bump when it changes
+
+
+@dataclass(frozen=True)
+class PairSettings:
+    """Everything that determines the pairs' contents (and the folder's config key)."""
+
+    dataset: dict
+    seed: int
+    map_size: int
+    raster_size: int
+    chunk: int
+    points_per_ink: float
+    schedule: str
+    iterations: int | None
+    palette: str | None  # None: the shipped palette
+
+    @classmethod
+    def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
+        from omegaconf import OmegaConf
+
+        return cls(dataset=OmegaConf.to_container(cfg.dataset, resolve=True), seed=int(cfg.seed), map_size=int(cfg.map_size),
+                   raster_size=int(cfg.raster_size), chunk=int(cfg.chunk), points_per_ink=float(cfg.synthesis.points_per_ink),
+                   schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette)
+
+    def palette_file(self) -> Path:
+        from synthesis.palette import DEFAULT_PALETTE
+
+        return Path(self.palette) if self.palette else DEFAULT_PALETTE
+
+    def key(self) -> str:
+        """Short hash of the settings and the palette file's contents."""
+        content = {"format": FORMAT, **asdict(self), "palette": file_sha256(self.palette_file())}
+        content["dataset"] = {k: v for k, v in self.dataset.items() if k != "items"}  # only bounds how many
+        return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
+    """Pair ``item``: map, synthesised points, raster. Raises :class:`SourceError` for a bad source."""
+    from synthesis.raster import point_raster
+    from synthesis.synthesize import point_count, synthesize
+
+    rng = np.random.default_rng([settings.seed, item])
+    target = map_to_target(maker.make(item, rng))
+    lab_map = target_to_map(target)
+    n = point_count(lab_map, settings.points_per_ink)
+    if n < 2:
+        raise SourceError(f"{maker.source(item)}: only {n} point(s) at points_per_ink={settings.points_per_ink:g}")
+    synthesis_seed = int(rng.integers(2**31))
+    result = synthesize(lab_map, n=n, palette=maker.palette, schedule=settings.schedule,
+                        iterations=settings.iterations, seed=synthesis_seed)
+    xy = result.points.xy.astype(np.float32)
+    meta = {"item": item, "source": maker.source(item), "n": n, "seed": synthesis_seed,
+            "final_loss": round(result.final_loss, 6), "seconds": round(result.seconds, 3)}
+    return Pairs(item=np.array([item], np.int64), raster=point_raster(xy, settings.raster_size)[None].astype(np.float16),
+                 target=target[None], points=xy, offsets=np.array([0, n], np.int64), meta=[meta])
+
+
+# --- workers -------------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _start_worker(settings: PairSettings, threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+    _WORKER["settings"] = settings
+    _WORKER["maker"] = build_maker(settings.dataset, settings.map_size, settings.palette)
+
+
+def _run_item(out_dir: str, item: int) -> tuple[int, str | None]:
+    """Make item ``item`` and write its part file; returns (item, skip reason or None)."""
+    settings, maker = _WORKER["settings"], _WORKER["maker"]
+    try:
+        pair = make_pair(settings, maker, item)
+    except SourceError as exc:  # bad source: recorded, never fatal
+        reason = str(exc)
+        atomic_write_text(part_path(Path(out_dir), item, skipped=True),
+                          json.dumps({"item": item, "source": maker.source(item), "reason": reason}) + "\n")
+        return item, reason
+    pair.write(part_path(Path(out_dir), item), compressed=False)
+    return item, None
+
+
+# --- resumption and merging ----------------------------------------------------
+def chunk_items(chunk: int, size: int, total: int) -> range:
+    return range(chunk * size, min((chunk + 1) * size, total))
+
+
+def done_items(out_dir: Path, chunk: int) -> set[int]:
+    """Items of ``chunk`` already made or skipped (in its shard file or as parts)."""
+    done: set[int] = set()
+    path = shard_path(out_dir, chunk)
+    if path.exists():
+        shard = read_shard(path)
+        done |= {int(i) for i in shard.item} | {int(s["item"]) for s in shard.skipped}
+    return done
+
+
+def part_items(out_dir: Path) -> set[int]:
+    folder = out_dir / PARTS
+    return {int(p.name[5:12]) for p in folder.glob("item-*")} if folder.is_dir() else set()
+
+
+def merge_chunk(out_dir: Path, chunk: int, items: range) -> None:
+    """Write shard ``chunk`` from its existing shard file and part files, then delete the parts."""
+    path = shard_path(out_dir, chunk)
+    singles, skipped = [], []
+    if path.exists():
+        old = read_shard(path)
+        singles += old.split()
+        skipped += old.skipped
+    used = []
+    for item in items:
+        part, skip = part_path(out_dir, item), part_path(out_dir, item, skipped=True)
+        if part.exists():
+            singles.append(read_shard(part))
+            used.append(part)
+        elif skip.exists():
+            skipped.append(json.loads(skip.read_text()))
+            used.append(skip)
+    singles.sort(key=lambda pair: int(pair.item[0]))
+    skipped.sort(key=lambda entry: int(entry["item"]))
+    if singles:
+        merged = Pairs.concatenate(singles)
+    else:
+        merged = Pairs(np.zeros(0, np.int64), np.zeros((0, 1, 1), np.float16), np.zeros((0, 1, 1, 3), np.uint8),
+                       np.zeros((0, 2), np.float32), np.zeros(1, np.int64))
+    merged.skipped = skipped
+    merged.write(path)
+    for part in used:
+        part.unlink()
+
+
+def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
+    """Make the missing pairs of this shard of the dataset; returns the run summary (see module docstring)."""
+    from omegaconf import OmegaConf
+
+    settings = PairSettings.from_config(cfg)
+    maker = build_maker(settings.dataset, settings.map_size, settings.palette)
+    if cfg.num_items is not None and int(cfg.num_items) < 1:
+        raise PatternshopError(f"num_items must be at least 1, got {cfg.num_items}")
+    total = len(maker) if cfg.num_items is None else int(cfg.num_items)
+    if maker.finite and total > len(maker):
+        print(f"[pairs] {maker.name} has {len(maker)} items; making {len(maker)}, not {total}", file=sys.stderr)
+        total = len(maker)
+    shard, num_shards = int(cfg.shard), int(cfg.num_shards)
+    if num_shards < 1 or not 0 <= shard < num_shards:
+        raise PatternshopError(f"shard must be in [0, num_shards), got shard={shard} num_shards={num_shards}")
+    out_dir = Path(cfg.out_dir)
+    key = settings.key()
+    existing = read_manifest(out_dir)
+    if existing is not None and existing.get("config_key") != key:
+        raise PatternshopError(f"{out_dir} holds pairs made with other settings (config key {existing.get('config_key')}, "
+                               f"now {key}); choose another out_dir or delete it")
+    (out_dir / PARTS).mkdir(parents=True, exist_ok=True)
+
+    chunks = [c for c in range(-(-total // settings.chunk)) if c % num_shards == shard]
+    parts = part_items(out_dir)
+    pending: dict[int, list[int]] = {}
+    for c in chunks:
+        items = chunk_items(c, settings.chunk, total)
+        done = done_items(out_dir, c)
+        missing = [i for i in items if i not in done and i not in parts]
+        if missing or any(i in parts for i in items):
+            pending[c] = missing
+    header = {"format": FORMAT, "dataset": maker.name, "config_key": key, "seed": settings.seed,
+              "settings": asdict(settings), "config": OmegaConf.to_container(cfg, resolve=True),
+              "palette": {"file": str(settings.palette_file()), "sha256": file_sha256(settings.palette_file())},
+              "raster": {"function": "synthesis.raster.point_raster", "size": settings.raster_size},
+              "unreadable_sources": maker.unreadable, "commit": git_commit(), "machine": machine(), "updated": utc_now()}
+    todo = [item for missing in pending.values() for item in missing]
+    start = time.perf_counter()
+    skipped_now: list[str] = []
+    remaining = {c: len(missing) for c, missing in pending.items()}
+    for c, count in remaining.items():
+        if count == 0:  # only parts left from an interrupted run
+            merge_chunk(out_dir, c, chunk_items(c, settings.chunk, total))
+    workers = max(1, int(cfg.workers))
+    with tqdm(total=len(todo), desc=f"pairs ({maker.name}, shard {shard}/{num_shards})", unit="pair", smoothing=0.1) as bar:
+        def finished(item: int, reason: str | None) -> None:
+            if reason:
+                skipped_now.append(reason)
+                bar.set_postfix(skipped=len(skipped_now), refresh=False)
+            bar.update()
+            c = item // settings.chunk
+            remaining[c] -= 1
+            if remaining[c] == 0:
+                merge_chunk(out_dir, c, chunk_items(c, settings.chunk, total))
+
+        if workers == 1 or len(todo) <= 1:
+            _start_worker(settings, int(cfg.threads_per_worker))
+            for item in todo:
+                finished(*_run_item(str(out_dir), item))
+        elif todo:
+            context = multiprocessing.get_context("spawn")  # no forked torch/BLAS thread state
+            with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
+                                     initargs=(settings, int(cfg.threads_per_worker))) as pool:
+                queue = iter(todo)
+                running = {pool.submit(_run_item, str(out_dir), item) for item in itertools.islice(queue, 2 * workers)}
+                while running:  # a bounded queue, so an interrupt leaves little half-done work
+                    complete, running = wait(running, return_when=FIRST_COMPLETED)
+                    for future in complete:
+                        finished(*future.result())
+                        for item in queue:
+                            running.add(pool.submit(_run_item, str(out_dir), item))
+                            break
+    seconds = time.perf_counter() - start
+    manifest = write_manifest(out_dir, header)
+    made = len(todo) - len(skipped_now)
+    return {"out_dir": str(out_dir), "dataset": maker.name, "shard": f"{shard}/{num_shards}", "made_now": made,
+            "skipped_now": skipped_now, "seconds": round(seconds, 1),
+            "pairs_per_minute": round(made * 60 / seconds, 2) if made and seconds > 0 else None,
+            "pairs_in_folder": manifest["pairs"], "skipped_in_folder": len(manifest["skipped"]),
+            "bytes_per_1000_pairs": manifest["bytes_per_1000_pairs"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: Hydra overrides; errors are one line (``--debug`` shows the traceback)."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    args = [a for a in args if a != "--debug"]
+    try:
+        summary = generate(compose_config("pairs", args))
+    except (PatternshopError, OSError) as exc:
+        if debug:
+            raise
+        print(f"data_gen.pairs: error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
