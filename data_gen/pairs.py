@@ -38,7 +38,7 @@ import numpy as np
 from tqdm import tqdm
 
 from data_gen.makers import MapMaker, SourceError, build_maker
-from data_gen.provenance import compose_config, file_sha256, git_commit, machine, utc_now
+from data_gen.provenance import file_sha256, git_commit, machine, run_config_command, utc_now
 from data_gen.shards import PARTS, Pairs, map_to_target, part_path, read_manifest, read_shard, shard_path, target_to_map, write_manifest
 from synthesis.atomic import atomic_write_text
 from synthesis.errors import PatternshopError
@@ -64,9 +64,12 @@ class PairSettings:
     def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
         from omegaconf import OmegaConf
 
-        return cls(dataset=OmegaConf.to_container(cfg.dataset, resolve=True), seed=int(cfg.seed), map_size=int(cfg.map_size),
-                   raster_size=int(cfg.raster_size), chunk=int(cfg.chunk), points_per_ink=float(cfg.synthesis.points_per_ink),
-                   schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette)
+        try:
+            return cls(dataset=OmegaConf.to_container(cfg.dataset, resolve=True), seed=int(cfg.seed), map_size=int(cfg.map_size),
+                       raster_size=int(cfg.raster_size), chunk=int(cfg.chunk), points_per_ink=float(cfg.synthesis.points_per_ink),
+                       schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette)
+        except (TypeError, ValueError) as exc:  # e.g. map_size=big: a user error, one line like the others
+            raise PatternshopError(f"bad pair setting: {exc}") from exc
 
     def palette_file(self) -> Path:
         from synthesis.palette import DEFAULT_PALETTE
@@ -234,9 +237,15 @@ def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
                 merge_chunk(out_dir, c, chunk_items(c, settings.chunk, total))
 
         if workers == 1 or len(todo) <= 1:
+            import torch
+
+            threads = torch.get_num_threads()
             _start_worker(settings, int(cfg.threads_per_worker))
-            for item in todo:
-                finished(*_run_item(str(out_dir), item))
+            try:
+                for item in todo:
+                    finished(*_run_item(str(out_dir), item))
+            finally:  # the caller (e.g. train.py) keeps its own thread count
+                torch.set_num_threads(threads)
         elif todo:
             context = multiprocessing.get_context("spawn")  # no forked torch/BLAS thread state
             with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
@@ -251,8 +260,13 @@ def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
                             running.add(pool.submit(_run_item, str(out_dir), item))
                             break
     seconds = time.perf_counter() - start
-    manifest = write_manifest(out_dir, header)
     made = len(todo) - len(skipped_now)
+    runs = (existing or {}).get("runs", [])
+    if todo:  # the history of runs that made pairs here: how long the folder took to make
+        runs.append({"started": header["updated"], "shard": f"{shard}/{num_shards}", "made": made, "skipped": len(skipped_now),
+                     "seconds": round(seconds, 1), "workers": workers, "machine": header["machine"]})
+    header["runs"] = runs
+    manifest = write_manifest(out_dir, header)
     return {"out_dir": str(out_dir), "dataset": maker.name, "shard": f"{shard}/{num_shards}", "made_now": made,
             "skipped_now": skipped_now, "seconds": round(seconds, 1),
             "pairs_per_minute": round(made * 60 / seconds, 2) if made and seconds > 0 else None,
@@ -262,18 +276,7 @@ def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: Hydra overrides; errors are one line (``--debug`` shows the traceback)."""
-    args = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in args
-    args = [a for a in args if a != "--debug"]
-    try:
-        summary = generate(compose_config("pairs", args))
-    except (PatternshopError, OSError) as exc:
-        if debug:
-            raise
-        print(f"data_gen.pairs: error: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps(summary, indent=2))
-    return 0
+    return run_config_command("python -m data_gen.pairs", "pairs", __doc__, generate, argv)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.corpus import CorpusConfig, SpectrumRanges, build_corpus
-from data_gen.provenance import compose_config, git_commit, machine, utc_now, versions
+from data_gen.provenance import git_commit, machine, run_config_command, utc_now, versions
 from data_gen.embedding import idw_encode, kde_locality, l1_distances, mds_layout, orient, stress1, trustworthiness
 from synthesis.atomic import atomic_write_text
 from synthesis.features import block_slices, scale_blocks
@@ -171,11 +171,15 @@ def build(cfg: DictConfig) -> dict:
     return record
 
 
-def main(argv: list[str] | None = None) -> None:
+def _build_and_report(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
+    record = build(cfg)
+    return {"metrics": record["metrics"], "presets": record["presets"], "timings_s": record["timings_s"]}
+
+
+def main(argv: list[str] | None = None) -> int:
     """Parse Hydra overrides (``--config-name NAME`` picks another config) and build."""
-    record = build(compose_config("palette", argv))
-    print(json.dumps({"metrics": record["metrics"], "presets": record["presets"], "timings_s": record["timings_s"]}, indent=2))
+    return run_config_command("python -m data_gen.palette", "palette", __doc__, _build_and_report, argv)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -60,3 +60,39 @@ def compose_config(default_name: str, argv: list[str] | None = None):  # noqa: A
         del args[at : at + 2]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return compose(config_name=name, overrides=args)
+
+
+def run_config_command(prog: str, default_name: str, doc: str, task, argv: list[str] | None = None) -> int:  # noqa: ANN001
+    """Shared ``main`` of the Hydra-configured build commands (``python -m data_gen.X key=value ...``).
+
+    ``--help`` prints ``doc`` and the composed default config; ``--debug`` shows
+    tracebacks; otherwise a user error (bad override, missing dataset, I/O) is one
+    line ``PROG: error: ...`` on stderr and exit status 2. ``task(cfg)`` returns
+    what to print as JSON.
+    """
+    import json
+
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    from synthesis.errors import PatternshopError
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    if "--help" in args or "-h" in args:
+        print(f"usage: {prog} [--config-name NAME] [--debug] [key=value ...]\n\n{doc.strip()}\n\n"
+              f"Settings (conf/{default_name}.yaml; override any as key=value):\n")
+        print(OmegaConf.to_yaml(compose_config(default_name, [])))
+        return 0
+    debug = "--debug" in args
+    args = [a for a in args if a != "--debug"]
+    try:
+        result = task(compose_config(default_name, args))
+    except (PatternshopError, OSError, HydraException, OmegaConfBaseException) as exc:
+        if debug:
+            raise
+        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f"{prog}: error: {message}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2))
+    return 0

@@ -77,15 +77,20 @@ class Pairs:
 
     @classmethod
     def concatenate(cls, parts: list[Pairs]) -> Pairs:
-        """One :class:`Pairs` holding all ``parts`` in the given order."""
-        counts = [np.diff(part.offsets) for part in parts]
+        """One :class:`Pairs` holding all ``parts`` in the given order.
+
+        Parts without pairs (a shard whose items were all skipped stores (0, 1, 1) placeholder
+        arrays) only contribute their skipped lists, so they concatenate with any raster size.
+        """
+        full = [part for part in parts if len(part)] or parts[:1]
+        counts = [np.diff(part.offsets) for part in full]
         return cls(
-            item=np.concatenate([part.item for part in parts]),
-            raster=np.concatenate([part.raster for part in parts]),
-            target=np.concatenate([part.target for part in parts]),
-            points=np.concatenate([part.points for part in parts]),
+            item=np.concatenate([part.item for part in full]),
+            raster=np.concatenate([part.raster for part in full]),
+            target=np.concatenate([part.target for part in full]),
+            points=np.concatenate([part.points for part in full]),
             offsets=np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64),
-            meta=[m for part in parts for m in part.meta],
+            meta=[m for part in full for m in part.meta],
             skipped=[s for part in parts for s in part.skipped],
         )
 

@@ -1,5 +1,7 @@
-"""ONNX export, ONNX Runtime inference and batch conversion.
+"""ONNX export, ONNX Runtime inference, batch conversion and scriptable map edits.
 
-Filled by the inference issue; importable now so the package layout (SPEC §4)
-is in place.
+* :mod:`export.onnx` — generator checkpoint -> ONNX model with metadata (needs torch, Lightning);
+* :mod:`export.runtime` — ONNX Runtime inference: point sets -> maps (no torch);
+* :mod:`export.convert` — folders of point files -> maps, and maps -> point files;
+* :mod:`export.edits` — pure edits of maps (region correlation, density gradient, canvas).
 """

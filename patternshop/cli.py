@@ -21,7 +21,8 @@ from collections.abc import Sequence
 
 from patternshop import __version__
 
-COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette", "patternshop.commands.synthesize")
+COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette", "patternshop.commands.synthesize",
+                   "patternshop.commands.network", "patternshop.commands.convert", "patternshop.commands.edit")
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130

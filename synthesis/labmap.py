@@ -25,6 +25,7 @@ from synthesis.errors import MapFormatError
 
 L_RANGE = (0.0, 100.0)
 AB_RANGE = (-128.0, 127.0)
+POINTS_PER_INK = 50_000  # points of a fully dark map: n = POINTS_PER_INK * mean density (paper's training data)
 _D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
 
 

@@ -30,11 +30,10 @@ from tqdm import tqdm
 from synthesis.edgepcf import Neighbourhoods, estimate, find_neighbourhoods, loss_and_gradient
 from synthesis.errors import PatternshopError
 from synthesis.fields import MapFields
-from synthesis.labmap import LabMap
+from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
 
-POINTS_PER_INK = 50_000  # n = POINTS_PER_INK * mean density (paper's training data)
 
 
 @dataclass(frozen=True)

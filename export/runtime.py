@@ -1,0 +1,177 @@
+"""ONNX Runtime inference on the CPU: point sets in, maps out (no torch needed).
+
+:class:`OnnxModel` wraps an exported generator (:mod:`export.onnx`);
+:func:`points_to_map` turns a :class:`~synthesis.points.PointSet` into a
+:class:`~synthesis.labmap.LabMap` with the function the network was trained on:
+
+1. **Scale.** The network learnt density and correlation in pixel units: in
+   training, a fully dark map held ``P_train`` points (the model's
+   ``points_per_ink``, 8,000 for the default model) on a 256-pixel raster.
+   A pattern is read in the synthesiser's convention, ``n = points_per_ink x
+   mean density`` (default: the synthesiser's 50,000, so ``infer`` followed by
+   ``synthesize`` keeps the point count), and rasterised at
+   ``R = 256 * sqrt(points_per_ink / (w h P_train))`` pixels per unit of the
+   domain ``[0, w] x [0, h]``, so that a region of density d has as many points
+   per pixel, at the same spacing in pixels, as in training.
+2. **Pad.** The raster is :func:`synthesis.raster.point_raster` of the points
+   on a square canvas of side ``ceil(R / 64) * 64`` (the U-Net needs multiples
+   of 64): the domain fills its top-left ``w R`` x ``h R`` pixels, the rest is
+   empty padding (the network sees a white border there).
+3. **Run and crop back.** The network is fully convolutional; its output is
+   cropped to the domain, decoded (L = 100 x channel 0, a, b = 255 x channels
+   1-2 - 128) and resampled to the requested width (default: 256 px on the
+   long side, the training maps' resolution).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import onnxruntime
+
+from export.edits import resize
+from synthesis.errors import PatternshopError, PatternshopWarning
+from synthesis.labmap import POINTS_PER_INK, LabMap
+from synthesis.points import PointSet
+from synthesis.raster import point_raster
+
+DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "patternshop_nn" / "assets" / "default.onnx"
+INPUT_NAME = "raster"
+OUTPUT_NAME = "map"
+SIZE_MULTIPLE = 64  # raster sides must be multiples of 2**levels of the U-Net (6 levels)
+
+PathLike = str | os.PathLike
+
+
+class OnnxModel:
+    """An exported Patternshop generator in an ONNX Runtime CPU session.
+
+    Args:
+        path: ``.onnx`` file (default: :data:`DEFAULT_MODEL`).
+        threads: ONNX Runtime intra-op threads (default 1).
+
+    Attributes:
+        path: the model file.
+        metadata: the model's metadata (see :mod:`export.onnx`), values JSON-decoded.
+        raster_size: the training rasters' side (256); :meth:`predict` takes any multiple of 64.
+
+    Raises:
+        PatternshopError: the file is missing, unreadable, or not a Patternshop model.
+    """
+
+    def __init__(self, path: PathLike | None = None, threads: int = 1) -> None:
+        if path is None and not DEFAULT_MODEL.is_file():
+            raise PatternshopError(f"no default model at {DEFAULT_MODEL}; train one with 'python train.py' and export it "
+                                   f"with 'patternshop export runs/procedural/checkpoints/best.ckpt {DEFAULT_MODEL}', or pass --model")
+        self.path = Path(path) if path is not None else DEFAULT_MODEL
+        if not self.path.is_file():
+            raise PatternshopError(f"{self.path}: no such model file")
+        if threads < 1:
+            raise PatternshopError(f"threads must be at least 1, got {threads}")
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        try:
+            self.session = onnxruntime.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime's own classes (InvalidProtobuf, InvalidArgument, Fail ...) derive from Exception
+            reason = str(exc).rsplit("failed:", 1)[-1].strip()
+            raise PatternshopError(f"{self.path}: not a readable ONNX model ({reason})") from exc
+        inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        shape = inputs[0].shape if len(inputs) == 1 else []
+        if ([i.name for i in inputs], [o.name for o in outputs]) != ([INPUT_NAME], [OUTPUT_NAME]) or len(shape) != 4 \
+                or shape[1] != 1:
+            raise PatternshopError(f"{self.path}: not a Patternshop model (needs input '{INPUT_NAME}' (B, 1, H, W) "
+                                   f"and output '{OUTPUT_NAME}')")
+        self.metadata = {key: _decode(value) for key, value in self.session.get_modelmeta().custom_metadata_map.items()}
+        self.raster_size = int(self.metadata.get("raster_size", 256))
+
+    @property
+    def points_per_ink(self) -> float | None:
+        """Points of a fully dark unit square in the training data, when the model records it."""
+        value = self.metadata.get("points_per_ink")
+        return float(value) if value is not None else None
+
+    def predict(self, rasters: np.ndarray) -> np.ndarray:
+        """Maps (B, 3, H, W) float32 in [0, 1] (L/100, z_a, z_b) for rasters (B, 1, H, W) in [0, 1], H, W multiples of 64."""
+        rasters = np.ascontiguousarray(rasters, dtype=np.float32)
+        if rasters.ndim != 4 or rasters.shape[1] != 1 or rasters.shape[2] % SIZE_MULTIPLE or rasters.shape[3] % SIZE_MULTIPLE:
+            raise ValueError(f"rasters must have shape (B, 1, H, W) with H, W multiples of {SIZE_MULTIPLE}, got {rasters.shape}")
+        return self.session.run([OUTPUT_NAME], {INPUT_NAME: rasters})[0]
+
+    def __repr__(self) -> str:
+        return f"OnnxModel({self.path}, {self.raster_size} px)"
+
+
+def _decode(value: str) -> object:
+    """A metadata value: JSON as the exporter writes it, else the plain string (models from elsewhere)."""
+    try:
+        return json.loads(value)
+    except json.JSONDecodeError:
+        return value
+
+
+def pattern_raster(points: PointSet, raster_size: int, trained_points_per_ink: float | None,
+                   points_per_ink: float = POINTS_PER_INK) -> tuple[np.ndarray, float]:
+    """(raster (S, S) float32 in [0, 1], pixels per unit R) of a pattern, padded to a multiple of 64 (steps 1-2).
+
+    ``raster_size`` and ``trained_points_per_ink`` are the model's (:class:`OnnxModel`); a model that does not
+    record its points per ink is taken to share the pattern's (R = raster_size).
+    """
+    if points_per_ink <= 0:
+        raise PatternshopError(f"points per ink must be positive, got {points_per_ink:g}")
+    w, h = points.domain
+    scale = raster_size * math.sqrt(points_per_ink / (w * h * (trained_points_per_ink or points_per_ink)))
+    side = SIZE_MULTIPLE * max(1, math.ceil(scale / SIZE_MULTIPLE - 1e-9))
+    return point_raster(points.xy * (scale / side), side), scale
+
+
+def output_to_map(output: np.ndarray, domain: tuple[float, float], scale: float, width: int) -> LabMap:
+    """Decode one network output (3, S, S) in [0, 1]: crop to the domain's ``w R`` x ``h R`` pixels, resample to ``width``."""
+    w, h = domain
+    crop = np.asarray(output, np.float32)[:, : max(1, round(h * scale)), : max(1, round(w * scale))]
+    lab_map = LabMap(np.stack([100.0 * crop[0], 255.0 * crop[1] - 128.0, 255.0 * crop[2] - 128.0], axis=-1))
+    return resize(lab_map, width) if width != lab_map.width else lab_map
+
+
+def map_width(domain: tuple[float, float], model: OnnxModel, width: int | None) -> int:
+    """Output width: ``width``, or the training maps' resolution (raster_size px on the long side)."""
+    return width if width is not None else max(1, round(domain[0] / max(domain) * model.raster_size))
+
+
+def saturation_warning(count: int, points_per_ink: float) -> str | None:
+    """A warning when ``count`` points exceed a fully dark map at ``points_per_ink`` (mean density > 1), else None."""
+    if count <= points_per_ink:
+        return None
+    return (f"{count} points are more than a fully dark map holds at {points_per_ink:g} points per ink: the map "
+            "comes out saturated (L near 0); pass a larger --points-per-ink")
+
+
+def points_to_map(points: PointSet, model: OnnxModel, width: int | None = None,
+                  points_per_ink: float = POINTS_PER_INK) -> LabMap:
+    """Infer the map of a point set (see the module docstring); ``width`` in pixels (default: 256 on the long side).
+
+    ``points_per_ink``: points of a fully dark map in the pattern's own scale (the synthesiser's convention).
+    Warns (:class:`PatternshopWarning`) when the pattern holds more points than that.
+    """
+    message = saturation_warning(len(points), points_per_ink)
+    if message:
+        warnings.warn(message, PatternshopWarning, stacklevel=2)
+    raster, scale = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink)
+    return output_to_map(model.predict(raster[None, None])[0], points.domain, scale, map_width(points.domain, model, width))
+
+
+def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:
+    """Warn when the model's a, b refer to another palette than ``palette_file`` (default: the shipped one)."""
+    from data_gen.provenance import file_sha256
+    from synthesis.palette import DEFAULT_PALETTE
+
+    recorded = model.metadata.get("palette_sha256")
+    palette_file = Path(palette_file) if palette_file is not None else DEFAULT_PALETTE
+    if recorded and palette_file.is_file() and recorded != file_sha256(palette_file):
+        warnings.warn(f"{model.path} was trained with another palette than {palette_file} (sha256 {str(recorded)[:12]}...): "
+                      "its colours may stand for other correlations", PatternshopWarning, stacklevel=2)

@@ -1,0 +1,96 @@
+"""Batch command: ``convert`` (a folder of point files to maps, or with --resynthesize maps to point files)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from synthesis.labmap import POINTS_PER_INK
+
+EXIT_SOME_FAILED = 1
+
+EPILOG = """\
+Bad files do not stop the run: they are listed on stderr at the end.
+Exit status: 0 every file converted or skipped; 1 some files failed (the
+others are written); 2 nothing done (bad arguments, missing folder or model)."""
+
+
+def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """Add ``convert``."""
+    convert = subparsers.add_parser(
+        "convert",
+        parents=[common],
+        help="batch: infer maps for a folder of point files (or synthesise points for a folder of maps)",
+        description="Infer a map for every point file (.txt, .csv, .xy, .pts, .npy) in IN_DIR and write "
+        "OUT_DIR/NAME.tif, running the network (ONNX Runtime) on batches of rasters while worker processes "
+        "read and rasterise the files. With --resynthesize, go the other way: synthesise OUT_DIR/NAME.txt "
+        "for every map in IN_DIR (CIELAB/ICCLAB TIFF, channel PNGs NAME.L.png, sRGB images), one map per "
+        "worker process. Existing outputs are skipped unless --overwrite.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    convert.add_argument("in_dir", help="folder of point files (of maps with --resynthesize)")
+    convert.add_argument("out_dir", help="output folder (created if missing)")
+    convert.add_argument("--model", metavar="FILE", help="ONNX model (default: the shipped patternshop_nn/assets/default.onnx)")
+    convert.add_argument("--batch-size", type=int, default=8, metavar="B", help="rasters per network run (default 8)")
+    convert.add_argument("--workers", type=int, default=2, metavar="N", help="worker processes (default 2; 1 works in this process)")
+    convert.add_argument("--threads", type=int, default=1, metavar="N",
+                         help="ONNX Runtime threads, or torch threads per worker with --resynthesize (default 1)")
+    convert.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of the output TIFFs (default 16)")
+    convert.add_argument("--overwrite", action="store_true", help="replace existing outputs instead of skipping their inputs")
+    convert.add_argument("--no-progress", action="store_true", help="no progress bar")
+    convert.add_argument("--points-per-ink", type=float, default=POINTS_PER_INK, metavar="K",
+                         help=f"points of a fully dark map: the scale point files are read at, and maps synthesised at "
+                         f"with --resynthesize (default {POINTS_PER_INK}, as synthesize)")
+    synthesis = convert.add_argument_group("maps to points (--resynthesize), as in 'patternshop synthesize'")
+    synthesis.add_argument("--resynthesize", action="store_true", help="synthesise points for maps instead of inferring maps")
+    synthesis.add_argument("--points", type=int, metavar="N", help="points per map (default: from the ink)")
+    synthesis.add_argument("--schedule", choices=("fast", "paper"), default="fast", help="optimisation schedule (default fast)")
+    synthesis.add_argument("--iterations", type=int, metavar="K", help="override the schedule's iteration count")
+    synthesis.add_argument("--seed", type=int, default=0, help="random seed, the same for every map (default 0)")
+    synthesis.add_argument("--palette", metavar="FILE", help="palette asset (default: the shipped one)")
+    convert.set_defaults(func=run_convert)
+
+
+def run_convert(args: argparse.Namespace) -> int:
+    import warnings
+
+    from export.convert import FAILED, SKIPPED, SynthesisSettings, convert_points, map_files, point_files, resynthesize_maps
+    from synthesis.errors import PatternshopError, PatternshopWarning
+
+    if args.workers < 1:
+        raise PatternshopError(f"--workers must be at least 1, got {args.workers}")
+    progress = not args.no_progress and sys.stderr.isatty()
+    if args.resynthesize:
+        if args.model:
+            raise PatternshopError("--model does not apply with --resynthesize (maps to points uses the synthesiser)")
+        sources = map_files(args.in_dir)
+        if not sources:
+            raise PatternshopError(f"{args.in_dir}: no maps (.tif, .tiff, .png, .jpg, .jpeg, channel PNGs NAME.L.png)")
+        settings = SynthesisSettings(points=args.points, points_per_ink=args.points_per_ink, schedule=args.schedule,
+                                     iterations=args.iterations, seed=args.seed, palette=args.palette)
+        results = resynthesize_maps(sources, args.out_dir, settings, workers=args.workers, threads=args.threads,
+                                    overwrite=args.overwrite, progress=progress)
+    else:
+        from export.runtime import OnnxModel, check_palette
+
+        sources = point_files(args.in_dir)
+        if not sources:
+            raise PatternshopError(f"{args.in_dir}: no point files (.txt, .csv, .xy, .pts, .npy)")
+        model = OnnxModel(args.model, threads=args.threads)
+        check_palette(model)
+        results = convert_points(sources, args.out_dir, model, batch_size=args.batch_size, workers=args.workers,
+                                 bits=args.bits, overwrite=args.overwrite, progress=progress, points_per_ink=args.points_per_ink)
+    for result in results:
+        for note in result.warnings:
+            warnings.warn(note, PatternshopWarning, stacklevel=1)
+    failed = [r for r in results if r.status == FAILED]
+    skipped = sum(r.status == SKIPPED for r in results)
+    written = len(results) - len(failed) - skipped
+    print(f"wrote {written} of {len(results)} files into {args.out_dir}"
+          + (f"; skipped {skipped} whose output exists (--overwrite replaces them)" if skipped else "")
+          + (f"; {len(failed)} failed:" if failed else ""), file=sys.stderr)
+    for result in failed:
+        error = result.error if result.error.startswith(str(result.source)) else f"{result.source}: {result.error}"
+        print(f"  {error}", file=sys.stderr)
+    return EXIT_SOME_FAILED if failed else 0

@@ -1,0 +1,107 @@
+"""Network commands: ``infer`` (points -> map with ONNX Runtime) and ``export`` (checkpoint -> ONNX model)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from patternshop.commands import check_map_output, check_output
+from synthesis.labmap import POINTS_PER_INK
+
+
+def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """Add ``infer`` and ``export``."""
+    infer = subparsers.add_parser(
+        "infer",
+        parents=[common],
+        help="infer the map (density and correlation) of a point pattern with the network",
+        description="Run the points-to-map network (ONNX Runtime, CPU) on a point file and write its map: "
+        "L from the local density, a,b from the local correlation. The pattern is read at the synthesiser's "
+        "scale (--points-per-ink points make a fully dark map, so 'synthesize' of the map gives back as many "
+        "points) and rasterised so that its points per pixel match the network's training; a non-square "
+        "domain fills the top-left of a square raster (the rest is empty) and the output is cropped back, "
+        "so the map keeps the domain's aspect, 256 px on its long side unless --width is given.",
+    )
+    infer.add_argument("points", help="input points (.txt, .csv or .npy)")
+    infer.add_argument("output", help="output map: CIELAB .tif, or NAME.L.png for three channel PNGs")
+    infer.add_argument("--model", metavar="FILE", help="ONNX model (default: the shipped patternshop_nn/assets/default.onnx)")
+    infer.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of a TIFF output (default 16)")
+    infer.add_argument("--preview", metavar="PNG", help="also write an sRGB PNG preview of the map")
+    infer.add_argument("--threads", type=int, default=1, metavar="N", help="ONNX Runtime threads (default 1)")
+    infer.add_argument("--domain", nargs=2, type=float, metavar=("W", "H"),
+                       help="domain [0,W]x[0,H] of the points, max(W,H)=1 (default: the file's '# domain:' comment, else 1 1)")
+    infer.add_argument("--width", type=int, metavar="PX", help="resample the map to this width (default: 256 px on the long side)")
+    infer.add_argument("--points-per-ink", type=float, default=POINTS_PER_INK, metavar="N",
+                       help=f"points of a fully dark map at the pattern's scale (default {POINTS_PER_INK}, as synthesize)")
+    infer.set_defaults(func=run_infer)
+
+    export = subparsers.add_parser(
+        "export",
+        parents=[common],
+        help="export a trained network checkpoint to an ONNX model for infer and convert",
+        description="Export the generator of a training checkpoint (python train.py writes "
+        "runs/NAME/checkpoints/best.ckpt and last.ckpt) to ONNX (opset 17, input 'raster' (B,1,H,W), output "
+        "'map' (B,3,H,W), all axes dynamic, H and W multiples of 64), with metadata: palette, raster parameters and model-card "
+        "fields. Prints the largest difference between torch and ONNX Runtime on random rasters.",
+    )
+    export.add_argument("checkpoint", help="Lightning checkpoint (.ckpt) of patternshop_nn.module.Pix2PixModule")
+    export.add_argument("output", help="output .onnx")
+    export.add_argument("--pairs", metavar="DIR", help="training-pair folder: records its dataset, points_per_ink and palette")
+    export.add_argument("--name", help="model name for the model card")
+    export.add_argument("--description", help="model description for the model card")
+    export.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="another model-card field (VALUE is JSON if it parses, else text); repeatable")
+    export.add_argument("--check", type=int, default=2, metavar="N", help="random rasters for the torch/ONNX comparison (default 2)")
+    export.set_defaults(func=run_export)
+
+
+def run_infer(args: argparse.Namespace) -> None:
+    from export.runtime import OnnxModel, check_palette, points_to_map
+    from synthesis.mapio import write_map, write_preview
+    from synthesis.points import read_points
+
+    output = check_map_output(args.output, args.points)
+    preview = check_output(args.preview, args.points, args.output, suffixes=(".png",)) if args.preview else None
+    model = OnnxModel(args.model, threads=args.threads)
+    check_palette(model)
+    points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
+    lab_map = points_to_map(points, model, width=args.width, points_per_ink=args.points_per_ink)
+    write_map(lab_map, output, bits=args.bits)
+    if preview is not None:
+        write_preview(lab_map, preview)
+    print(f"wrote {output} ({lab_map.width}x{lab_map.height} px) from {len(points)} points with {model.path}", file=sys.stderr)
+
+
+def _card_field(text: str) -> tuple[str, object]:
+    """``KEY=VALUE`` -> (key, JSON value or the text)."""
+    from synthesis.errors import PatternshopError
+
+    key, separator, value = text.partition("=")
+    if not separator or not key:
+        raise PatternshopError(f"--set needs KEY=VALUE, got {text!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+def run_export(args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from data_gen.provenance import file_sha256
+    from export.onnx import OPSET, export_onnx, load_generator, max_abs_difference, metadata_from_pairs
+    from synthesis.raster import RASTER_SIZE
+
+    output = check_output(args.output, args.checkpoint, suffixes=(".onnx",))
+    metadata = metadata_from_pairs(args.pairs) if args.pairs else {}
+    metadata.update({key: value for key, value in (("name", args.name), ("description", args.description)) if value})
+    metadata.update(_card_field(text) for text in args.set)
+    generator = load_generator(args.checkpoint)
+    metadata.update({"checkpoint": str(args.checkpoint), "checkpoint_sha256": file_sha256(args.checkpoint)})
+    props = export_onnx(generator, output, metadata)
+    message = f"wrote {output} (opset {OPSET}, {props['generator']['parameters']} parameters)"
+    if args.check > 0:
+        rasters = np.random.default_rng(0).random((args.check, 1, RASTER_SIZE, RASTER_SIZE), dtype=np.float32)
+        message += f"; max |torch - onnxruntime| = {max_abs_difference(generator, output, rasters):.2g} on {args.check} random rasters"
+    print(message, file=sys.stderr)

@@ -1,0 +1,101 @@
+"""Non-learned estimates the network is measured against, and the validation metrics.
+
+* Density: kernel density estimation, a Gaussian blur of the point-count raster
+  divided by the expected count of a fully black pixel (``points_per_ink / S^2``
+  on the unit square). Its bandwidth is picked per dataset, the best of
+  :data:`KDE_BANDWIDTHS` on the evaluated pairs (an oracle choice, so the
+  baseline is as strong as it can be).
+* Correlation: the map is cut into ``cells`` x ``cells`` squares; each square's
+  points (the square grown until it holds :data:`MIN_WINDOW_POINTS`) are
+  matched to the nearest palette exemplar in perceptual-feature space
+  (:meth:`synthesis.palette.Palette.decode`, as ``patternshop analyze`` does)
+  and the square takes that exemplar's latent.
+
+Metrics, on maps in the network's units (L/100 and z, all in [0, 1]):
+``density_mae`` is the mean |density error| over all pixels; ``latent_mae``
+is the mean |z error| (both channels) over the pixels whose true density is
+at least :data:`LATENT_MIN_DENSITY` — where there are no points, correlation
+is not observable and any value is as good as another.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from synthesis.errors import PatternshopError
+from synthesis.palette import Palette, ab_to_latent
+
+KDE_BANDWIDTHS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)  # pixels of the raster
+MIN_WINDOW_POINTS = 128  # fewest points the perceptual decoder is given
+LATENT_MIN_DENSITY = 0.1
+
+
+def density_mae(predicted: np.ndarray, target: np.ndarray) -> float:
+    """Mean |error| of density = 1 - channel 0, maps (..., 3, H, W) in [0, 1]."""
+    return float(np.mean(np.abs(np.asarray(predicted)[..., 0, :, :] - np.asarray(target)[..., 0, :, :])))
+
+
+def latent_mae(predicted: np.ndarray, target: np.ndarray) -> float:
+    """Mean |latent error| over pixels with true density >= LATENT_MIN_DENSITY; maps (..., 3, H, W) in [0, 1]."""
+    predicted, target = np.asarray(predicted), np.asarray(target)
+    inked = (1.0 - target[..., 0, :, :]) >= LATENT_MIN_DENSITY
+    error = np.abs(predicted[..., 1:, :, :] - target[..., 1:, :, :]).mean(axis=-3)
+    return float(error[inked].mean()) if inked.any() else float("nan")
+
+
+def kde_density(raster: np.ndarray, points_per_ink: float, bandwidth_px: float) -> np.ndarray:
+    """(S, S) density in [0, 1] from a point-count raster (S, S) of the unit square."""
+    side = raster.shape[-1]
+    blurred = gaussian_filter(np.asarray(raster, np.float64), bandwidth_px, mode="constant")
+    return np.clip(blurred * side * side / points_per_ink, 0.0, 1.0)
+
+
+def windowed_latent(points: np.ndarray, size: int, palette: Palette, cells: int = 4) -> np.ndarray:
+    """(size, size, 2) latent field decoded per square cell from points (n, 2) in the unit square."""
+    points = np.asarray(points, np.float64)
+    field = np.empty((size, size, 2), np.float32)
+    fallback = palette.exemplar_z.mean(axis=0)
+    edges = np.linspace(0, size, cells + 1).round().astype(int)
+    for row in range(cells):
+        for col in range(cells):
+            lo = np.array([edges[col], edges[row]]) / size
+            hi = np.array([edges[col + 1], edges[row + 1]]) / size
+            field[edges[row] : edges[row + 1], edges[col] : edges[col + 1]] = _decode_window(points, lo, hi, palette, fallback)
+    return field
+
+
+def _decode_window(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, palette: Palette, fallback: np.ndarray) -> np.ndarray:
+    """Latent (2,) of the points in [lo, hi], the window grown about its centre until it holds enough points."""
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    while True:
+        low, high = np.clip(centre - half, 0, 1), np.clip(centre + half, 0, 1)
+        inside = points[np.all((points >= low) & (points <= high), axis=1)]
+        if len(inside) >= MIN_WINDOW_POINTS:
+            break
+        if np.all(low == 0) and np.all(high == 1):
+            return fallback
+        half = half * 1.5
+    try:
+        a, b = palette.decode(inside - low, tuple(high - low))
+    except PatternshopError:  # a thin border window whose rasters are too small to measure
+        return fallback
+    return ab_to_latent(np.array([a, b]))
+
+
+def evaluate_baselines(rasters: np.ndarray, points: list[np.ndarray], targets: np.ndarray, points_per_ink: float,
+                       palette: Palette, cells: int = 4) -> dict:
+    """Baseline metrics on pairs: rasters (K, S, S), points K x (n, 2), targets (K, 3, S, S) in [0, 1].
+
+    Returns ``kde_density_mae`` (at the best bandwidth, also returned as
+    ``kde_bandwidth_px``), ``baseline_latent_mae`` and ``pairs``.
+    """
+    rasters = np.asarray(rasters, np.float64)
+    true_density = 1.0 - np.asarray(targets)[:, 0]
+    errors = {h: float(np.mean([np.abs(kde_density(r, points_per_ink, h) - d).mean() for r, d in zip(rasters, true_density, strict=True)]))
+              for h in KDE_BANDWIDTHS}
+    best = min(errors, key=errors.get)
+    latents = np.stack([windowed_latent(xy, np.shape(targets)[-1], palette, cells).transpose(2, 0, 1) for xy in points])
+    predicted = np.concatenate([np.asarray(targets)[:, :1], latents], axis=1)
+    return {"kde_density_mae": round(errors[best], 5), "kde_bandwidth_px": best,
+            "baseline_latent_mae": round(latent_mae(predicted, targets), 5), "pairs": len(rasters)}

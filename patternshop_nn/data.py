@@ -1,0 +1,145 @@
+"""Training data for the network: pair folders (:mod:`data_gen.shards`) as tensors.
+
+A sample is ``(raster, target)``: raster (1, S, S) float32 in [0, 1], target
+(3, S, S) float32 in [0, 1] (L/100 and the latent z). Training samples get a
+random symmetry of the square (flips and transposition, 8 in all): density and
+correlation are isotropic, so each symmetric pair is as valid as the original.
+They may also be random ``crop`` x ``crop`` windows: the U-Net is fully
+convolutional, density and correlation are local, and a 128-pixel crop costs a
+quarter of a full raster, so a CPU sees four times as many pairs per hour.
+
+The validation split is fixed by item number (every ``round(1/val_fraction)``-th
+item), so it stays the same when more pairs are added to the folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from data_gen.shards import Pairs, load_pairs
+
+
+def dihedral(tensor: torch.Tensor, code: int) -> torch.Tensor:
+    """One of the 8 symmetries of the square on the last two axes: bit 0 flips x, bit 1 flips y, bit 2 transposes."""
+    if code & 1:
+        tensor = tensor.flip(-1)
+    if code & 2:
+        tensor = tensor.flip(-2)
+    if code & 4:
+        tensor = tensor.transpose(-1, -2)
+    return tensor
+
+
+class PairDataset(Dataset):
+    """Samples ``k`` of ``pairs`` (all when ``indices`` is None), optionally with random symmetries."""
+
+    def __init__(self, pairs: Pairs, indices: np.ndarray | None = None, augment: bool = False, crop: int | None = None,
+                 seed: int = 0) -> None:
+        self.pairs = pairs
+        self.indices = np.arange(len(pairs)) if indices is None else np.asarray(indices)
+        self.augment = augment
+        side = pairs.raster.shape[-1]
+        if crop is not None and not 0 < crop <= side:
+            raise ValueError(f"crop must be in (0, {side}], got {crop}")
+        self.crop = None if crop in (None, side) else crop
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        k = int(self.indices[index])
+        raster = torch.from_numpy(self.pairs.raster[k].astype(np.float32))[None]
+        target = torch.from_numpy(self.pairs.target[k]).permute(2, 0, 1).float() / 255.0
+        if self.crop:
+            top, left = (int(v) for v in torch.randint(raster.shape[-1] - self.crop + 1, (2,), generator=self.generator))
+            raster = raster[..., top : top + self.crop, left : left + self.crop]
+            target = target[..., top : top + self.crop, left : left + self.crop]
+        if self.augment:
+            code = int(torch.randint(8, (1,), generator=self.generator))
+            raster, target = dihedral(raster, code), dihedral(target, code)
+        return raster.contiguous(), target.contiguous()
+
+
+def split_items(items: np.ndarray, val_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """(train, val) positions: every round(1/val_fraction)-th item number goes to validation."""
+    if not 0 < val_fraction < 1:
+        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
+    stride = max(2, round(1 / val_fraction))
+    is_val = np.asarray(items) % stride == stride - 1
+    return np.flatnonzero(~is_val), np.flatnonzero(is_val)
+
+
+class PairDataModule(L.LightningDataModule):
+    """Train/validation loaders over one pair folder (loaded into memory: ~330 kB per 256 x 256 pair)."""
+
+    def __init__(self, pairs_dir: str | Path, batch_size: int = 8, val_fraction: float = 0.05, augment: bool = True, crop: int | None = None,
+                 num_workers: int = 0, seed: int = 0, max_val_items: int | None = 32, baselines: bool = True,
+                 baseline_cells: int = 4) -> None:
+        super().__init__()
+        self.pairs_dir = Path(pairs_dir)
+        self.batch_size, self.val_fraction, self.augment, self.crop = batch_size, val_fraction, augment, crop
+        self.num_workers, self.seed, self.max_val_items = num_workers, seed, max_val_items
+        self.baselines, self.baseline_cells = baselines, baseline_cells
+        self.pairs: Pairs | None = None
+        self.baseline_metrics: dict | None = None
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.pairs is not None:
+            return
+        self.pairs = load_pairs(self.pairs_dir)
+        train, val = split_items(self.pairs.item, self.val_fraction)
+        if self.max_val_items is not None:
+            val = val[: self.max_val_items]
+        if len(train) == 0 or len(val) == 0:
+            from synthesis.errors import PatternshopError
+
+            raise PatternshopError(f"{self.pairs_dir}: {len(self.pairs)} pairs are too few for a train/validation split "
+                                   f"at val_fraction={self.val_fraction}")
+        if self.pairs.raster.shape[-1] != self.pairs.target.shape[-2]:
+            from synthesis.errors import PatternshopError
+
+            raise PatternshopError(f"{self.pairs_dir}: rasters are {self.pairs.raster.shape[-1]} px but maps "
+                                   f"{self.pairs.target.shape[-2]} px; make pairs with map_size = raster_size")
+        self.train_set = PairDataset(self.pairs, train, augment=self.augment, crop=self.crop, seed=self.seed)
+        self.val_set = PairDataset(self.pairs, val)
+        if self.baselines:
+            self.baseline_metrics = self._baselines(val)
+
+    def _baselines(self, val: np.ndarray) -> dict:
+        """Baseline metrics on the validation pairs, cached in ``<pairs_dir>/baselines.json`` (they never change)."""
+        import json
+
+        from data_gen.shards import read_manifest
+        from patternshop_nn.baselines import evaluate_baselines
+        from synthesis.atomic import atomic_write_text
+        from synthesis.palette import load_palette
+
+        manifest = read_manifest(self.pairs_dir) or {}
+        settings = manifest.get("settings", {})
+        key = {"items": [int(i) for i in self.pairs.item[val]], "cells": self.baseline_cells,
+               "config_key": manifest.get("config_key")}
+        cache = self.pairs_dir / "baselines.json"
+        if cache.is_file():
+            cached = json.loads(cache.read_text())
+            if cached.get("key") == key:
+                return cached["metrics"]
+        targets = np.stack([self.val_set[k][1].numpy() for k in range(len(self.val_set))])
+        metrics = evaluate_baselines(self.pairs.raster[val], [self.pairs.points_of(int(k)) for k in val], targets,
+                                     float(settings.get("points_per_ink", 8000)), load_palette(settings.get("palette")),
+                                     self.baseline_cells)
+        atomic_write_text(cache, json.dumps({"key": key, "metrics": metrics}, indent=2) + "\n")
+        return metrics
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(self.train_set, batch_size=self.batch_size, shuffle=True, drop_last=len(self.train_set) > self.batch_size,
+                          num_workers=self.num_workers, persistent_workers=self.num_workers > 0)
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(self.val_set, batch_size=self.batch_size, shuffle=False, num_workers=self.num_workers,
+                          persistent_workers=self.num_workers > 0)

@@ -1,0 +1,129 @@
+"""The conditional GAN as a LightningModule (SPEC §2.4, supplemental §1.4).
+
+Manual optimisation, one discriminator and one generator step per batch:
+
+* discriminator: ``(GAN(D(x, y), real) + GAN(D(x, G(x)), fake)) / 2``;
+* generator: ``L1(G(x), y) + adversarial_weight * GAN(D(x, G(x)), real)``
+  (paper: weight 0.001);
+* Adam (lr 1e-4, betas (0.5, 0.999)) for both; the learning rates halve every
+  ``lr_halving_epochs`` epochs (paper: 100).
+
+Validation logs ``val/density_mae`` and ``val/latent_mae`` (see
+:mod:`patternshop_nn.baselines`) and writes a PNG of a few predictions per
+epoch into the logger's folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch import nn
+
+from patternshop_nn.baselines import LATENT_MIN_DENSITY
+from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator, init_weights
+
+
+class Pix2PixModule(L.LightningModule):
+    """Generator + conditional PatchGAN; ``generator`` maps (B, 1, S, S) rasters to (B, 3, S, S) maps in [0, 1]."""
+
+    def __init__(self, levels: int = 6, base_channels: int = 12, max_channels: int = 96, dropout: float = 0.0,
+                 disc_channels: int = 16, disc_layers: int = 3, gan_mode: str = "vanilla", adversarial_weight: float = 0.001,
+                 lr: float = 1e-4, betas: tuple[float, float] = (0.5, 0.999), lr_halving_epochs: int = 100,
+                 sample_images: int = 4) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.automatic_optimization = False
+        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout)
+        self.discriminator = PatchDiscriminator(4, disc_channels, disc_layers)
+        init_weights(self.generator)
+        init_weights(self.discriminator)
+        self.gan_loss = GANLoss(gan_mode)
+        self.l1 = nn.L1Loss()
+
+    def forward(self, raster: torch.Tensor) -> torch.Tensor:
+        return self.generator(raster)
+
+    def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
+        hp = self.hparams
+        optimizers = [torch.optim.Adam(net.parameters(), lr=hp.lr, betas=tuple(hp.betas)) for net in (self.generator, self.discriminator)]
+        schedulers = [torch.optim.lr_scheduler.StepLR(opt, step_size=hp.lr_halving_epochs, gamma=0.5) for opt in optimizers]
+        return optimizers, schedulers
+
+    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> None:
+        raster, target = batch
+        opt_g, opt_d = self.optimizers()
+        fake = self.generator(raster)
+
+        self.toggle_optimizer(opt_d)
+        loss_d = 0.5 * (self.gan_loss(self.discriminator(raster, target), True)
+                        + self.gan_loss(self.discriminator(raster, fake.detach()), False))
+        opt_d.zero_grad(set_to_none=True)
+        self.manual_backward(loss_d)
+        opt_d.step()
+        self.untoggle_optimizer(opt_d)
+
+        self.toggle_optimizer(opt_g)
+        loss_l1 = self.l1(fake, target)
+        loss_adv = self.gan_loss(self.discriminator(raster, fake), True)
+        loss_g = loss_l1 + self.hparams.adversarial_weight * loss_adv
+        opt_g.zero_grad(set_to_none=True)
+        self.manual_backward(loss_g)
+        opt_g.step()
+        self.untoggle_optimizer(opt_g)
+
+        self.log_dict({"train/l1": loss_l1, "train/adv": loss_adv, "train/d": loss_d}, prog_bar=True, on_step=True,
+                      on_epoch=True, batch_size=len(raster))
+
+    def on_train_epoch_end(self) -> None:
+        for scheduler in self.lr_schedulers():
+            scheduler.step()
+
+    def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> None:
+        raster, target = batch
+        predicted = self.generator(raster)
+        density_error = (predicted[:, 0] - target[:, 0]).abs().mean()
+        inked = (1.0 - target[:, 0]) >= LATENT_MIN_DENSITY
+        latent_error = (predicted[:, 1:] - target[:, 1:]).abs().mean(dim=1)[inked]
+        # batch sums weighted like the metrics' definitions (pixels; inked pixels for the latent)
+        self.log("val/density_mae", density_error, batch_size=len(raster), prog_bar=True)
+        if latent_error.numel():
+            self.log("val/latent_mae", latent_error.mean(), batch_size=latent_error.numel(), prog_bar=True)
+        self.log("val/l1", self.l1(predicted, target), batch_size=len(raster))
+        if batch_index == 0 and self.hparams.sample_images:
+            self._save_samples(raster, predicted, target)
+
+    def on_validation_epoch_end(self) -> None:
+        """Log the non-learned baselines measured on the same validation pairs (constant; for comparison)."""
+        datamodule = getattr(self.trainer, "datamodule", None)
+        baselines = getattr(datamodule, "baseline_metrics", None)
+        if baselines and not self.trainer.sanity_checking:
+            self.log_dict({"val/kde_density_mae": baselines["kde_density_mae"],
+                           "val/baseline_latent_mae": baselines["baseline_latent_mae"]})
+
+    def _save_samples(self, raster: torch.Tensor, predicted: torch.Tensor, target: torch.Tensor) -> None:
+        """PNG rows of (raster | predicted map | true map) as sRGB, into ``<log dir>/samples/``."""
+        logger = self.logger
+        if logger is None or getattr(logger, "log_dir", None) is None or self.trainer.sanity_checking:
+            return
+        from PIL import Image
+
+        from synthesis.atomic import atomic_path
+        from synthesis.labmap import LabMap
+
+        def srgb(maps: torch.Tensor) -> np.ndarray:
+            lab = maps.detach().cpu().numpy().transpose(1, 2, 0).astype(np.float64)
+            return LabMap(np.stack([lab[..., 0] * 100, lab[..., 1] * 255 - 128, lab[..., 2] * 255 - 128], -1)).to_srgb()
+
+        rows = []
+        for k in range(min(self.hparams.sample_images, len(raster))):
+            counts = raster[k, 0].detach().cpu().numpy()
+            points = 1.0 - np.repeat((counts / max(float(counts.max()), 1e-6))[..., None], 3, -1)
+            rows.append(np.concatenate([points, srgb(predicted[k]), srgb(target[k])], axis=1))
+        image = (np.concatenate(rows, axis=0) * 255).round().clip(0, 255).astype(np.uint8)
+        path = Path(logger.log_dir) / "samples" / f"epoch{self.current_epoch:04d}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp:
+            Image.fromarray(image).save(tmp, format="PNG")

@@ -1,0 +1,138 @@
+"""The points-to-map network (SPEC §2.4, supplemental §1.4): generator, discriminator, GAN loss.
+
+Shapes and ranges (B = batch, S = raster size, a multiple of ``2**levels``):
+
+* generator input: (B, 1, S, S) point raster in [0, 1] (:func:`synthesis.raster.point_raster`);
+* generator output: (B, 3, S, S) in [0, 1]: channel 0 is L/100 (``1 - density``),
+  channels 1-2 the latent z of the correlation (``a, b = 255 z - 128``);
+* discriminator input: raster and map concatenated, (B, 4, S, S); output: (B, 1, S/8, S/8)
+  patch logits (3 strided layers, a 70 x 70 receptive field as pix2pix's PatchGAN).
+
+The generator is a pix2pix U-Net with one encoder and **two decoders**, one
+for density (1 channel) and one for correlation (2 channels), each with skip
+connections from the shared encoder; their outputs are concatenated and passed
+through a sigmoid. Widths double from ``base_channels`` per level up to
+``max_channels``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:
+    """Encoder level: LeakyReLU, 4x4 stride-2 convolution (halves the size), batch norm."""
+    layers: list[nn.Module] = [nn.LeakyReLU(0.2), nn.Conv2d(in_channels, out_channels, 4, 2, 1, bias=not norm)]
+    if norm:
+        layers.append(nn.BatchNorm2d(out_channels))
+    return nn.Sequential(*layers)
+
+
+def _up(in_channels: int, out_channels: int, dropout: float) -> nn.Sequential:
+    """Decoder level: ReLU, 4x4 stride-2 transposed convolution (doubles the size), batch norm, dropout."""
+    layers: list[nn.Module] = [nn.ReLU(), nn.ConvTranspose2d(in_channels, out_channels, 4, 2, 1, bias=False), nn.BatchNorm2d(out_channels)]
+    if dropout > 0:
+        layers.append(nn.Dropout(dropout))
+    return nn.Sequential(*layers)
+
+
+class Decoder(nn.Module):
+    """One U-Net decoder branch over the encoder's features (deepest first) -> (B, out_channels, S, S) logits."""
+
+    def __init__(self, widths: list[int], out_channels: int, dropout: float) -> None:
+        super().__init__()
+        # widths[k] = channels of encoder level k (k = 0 is the first, at S/2).
+        levels = len(widths)
+        ups = [_up(widths[-1], widths[-2], dropout)]
+        for k in range(levels - 2, 0, -1):  # input: previous up output concatenated with the skip of level k
+            ups.append(_up(2 * widths[k], widths[k - 1], dropout if k >= levels - 3 else 0.0))
+        self.ups = nn.ModuleList(ups)
+        self.head = nn.Sequential(nn.ReLU(), nn.ConvTranspose2d(2 * widths[0], out_channels, 4, 2, 1))
+
+    def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
+        x = self.ups[0](features[-1])
+        for up, skip in zip(self.ups[1:], reversed(features[:-1][1:]), strict=True):
+            x = up(torch.cat([x, skip], 1))
+        return self.head(torch.cat([x, features[0]], 1))
+
+
+class DualBranchUNet(nn.Module):
+    """U-Net generator with a density and a correlation decoder (see module docstring).
+
+    Args:
+        levels: down-/up-sampling levels (paper: 6); the raster side must be a multiple of ``2**levels``.
+        base_channels: channels after the first level; doubled per level up to ``max_channels``.
+        dropout: dropout in the three deepest decoder levels (pix2pix's noise), 0 to disable.
+    """
+
+    def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
+                 dropout: float = 0.0) -> None:
+        super().__init__()
+        if levels < 2:
+            raise ValueError(f"levels must be at least 2, got {levels}")
+        widths = [min(base_channels * 2**k, max_channels) for k in range(levels)]
+        self.levels = levels
+        self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1)
+        self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < levels - 1) for k in range(1, levels))
+        self.density = Decoder(widths, 1, dropout)
+        self.correlation = Decoder(widths, 2, dropout)
+
+    def forward(self, raster: torch.Tensor) -> torch.Tensor:
+        """(B, 1, S, S) raster in [0, 1] -> (B, 3, S, S) map in [0, 1] (L/100, z_a, z_b)."""
+        side = raster.shape[-1]
+        if raster.shape[-2] != side or side % 2**self.levels:
+            raise ValueError(f"raster must be square with a side divisible by {2**self.levels}, got {tuple(raster.shape[-2:])}")
+        features = [self.first(raster)]
+        for down in self.downs:
+            features.append(down(features[-1]))
+        return torch.sigmoid(torch.cat([self.density(features), self.correlation(features)], 1))
+
+
+class PatchDiscriminator(nn.Module):
+    """Conditional PatchGAN: (B, in_channels, S, S) -> (B, 1, S/8, S/8) real/fake logits per patch.
+
+    Three strided 4x4 convolutions (``base_channels`` doubling per layer), one
+    stride-1 convolution and a 1-channel output convolution (pix2pix's
+    ``n_layers=3`` discriminator).
+    """
+
+    def __init__(self, in_channels: int = 4, base_channels: int = 32, layers: int = 3) -> None:
+        super().__init__()
+        blocks: list[nn.Module] = [nn.Conv2d(in_channels, base_channels, 4, 2, 1), nn.LeakyReLU(0.2)]
+        width = base_channels
+        for k in range(1, layers + 1):
+            out = base_channels * min(2**k, 8)
+            stride = 2 if k < layers else 1
+            blocks += [nn.Conv2d(width, out, 4, stride, 1, bias=False), nn.BatchNorm2d(out), nn.LeakyReLU(0.2)]
+            width = out
+        blocks.append(nn.Conv2d(width, 1, 4, 1, 1))
+        self.net = nn.Sequential(*blocks)
+
+    def forward(self, raster: torch.Tensor, lab: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([raster, lab], 1))
+
+
+class GANLoss(nn.Module):
+    """Adversarial loss on patch logits: ``vanilla`` (pix2pix's BCE) or ``lsgan`` (least squares)."""
+
+    def __init__(self, mode: str = "vanilla") -> None:
+        super().__init__()
+        if mode not in ("vanilla", "lsgan"):
+            raise ValueError(f"unknown GAN loss {mode!r}; choose vanilla or lsgan")
+        self.loss = nn.BCEWithLogitsLoss() if mode == "vanilla" else nn.MSELoss()
+
+    def forward(self, logits: torch.Tensor, real: bool) -> torch.Tensor:
+        return self.loss(logits, torch.full_like(logits, 1.0 if real else 0.0))
+
+
+def init_weights(module: nn.Module, gain: float = 0.02) -> None:
+    """pix2pix initialisation: convolutions N(0, gain), batch-norm scales N(1, gain), biases 0."""
+    for layer in module.modules():
+        if isinstance(layer, nn.Conv2d | nn.ConvTranspose2d):
+            nn.init.normal_(layer.weight, 0.0, gain)
+            if layer.bias is not None:
+                nn.init.zeros_(layer.bias)
+        elif isinstance(layer, nn.BatchNorm2d):
+            nn.init.normal_(layer.weight, 1.0, gain)
+            nn.init.zeros_(layer.bias)

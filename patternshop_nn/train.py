@@ -1,0 +1,115 @@
+"""Training entry point (``python train.py dataset=procedural``; settings in ``conf/train.yaml``).
+
+1. Makes the missing training pairs of the dataset (:func:`data_gen.pairs.generate`,
+   resumable) unless ``data.generate=false``.
+2. Trains :class:`~patternshop_nn.module.Pix2PixModule` with the Lightning
+   Trainer of ``trainer=cpu|gpu|ddp``, checkpointing into ``${run_dir}/checkpoints``
+   (``last.ckpt`` every ``checkpoint_every_n_steps`` steps and at epoch ends,
+   ``best.ckpt`` by validation L1). Rerunning the same command resumes from
+   ``last.ckpt`` (``resume=false`` starts over).
+3. Writes ``${run_dir}/summary.json``: steps, epochs, wall time, median
+   training-step time, the last validation metrics and the baselines.
+
+User errors (missing dataset root, too few pairs...) are one line on stderr and
+exit status 2; ``HYDRA_FULL_ERROR=1`` or ``+debug=true`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import hydra
+import lightning as L
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from synthesis.errors import PatternshopError
+
+
+class StepTimer(L.Callback):
+    """Wall time of every training batch (both optimiser steps), for the summary."""
+
+    def __init__(self) -> None:
+        self.seconds: list[float] = []
+        self._start = 0.0
+
+    def on_train_batch_start(self, trainer, module, batch, batch_index) -> None:  # noqa: ANN001 - Lightning's hook
+        self._start = time.perf_counter()
+
+    def on_train_batch_end(self, trainer, module, outputs, batch, batch_index) -> None:  # noqa: ANN001
+        self.seconds.append(time.perf_counter() - self._start)
+
+
+def make_pairs(cfg: DictConfig) -> None:
+    """Make the missing pairs: ``cfg.pairs`` is conf/generation/default.yaml, as in ``python -m data_gen.pairs``."""
+    from data_gen.pairs import generate
+
+    pairs = OmegaConf.create(OmegaConf.to_container(cfg.pairs, resolve=True))
+    pairs.dataset = cfg.dataset
+    summary = generate(pairs)
+    if summary["made_now"] or summary["skipped_now"]:
+        print(f"[train] pairs: {json.dumps(summary)}", file=sys.stderr)
+
+
+def train(cfg: DictConfig) -> dict:
+    """Run steps 1-3 of the module docstring; returns the summary."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    from patternshop_nn.data import PairDataModule
+
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    if cfg.data.generate:
+        make_pairs(cfg)
+    L.seed_everything(int(cfg.seed), workers=True, verbose=False)
+    run_dir = Path(cfg.run_dir)
+    data = cfg.data
+    datamodule = PairDataModule(data.pairs_dir, batch_size=int(data.batch_size), val_fraction=float(data.val_fraction),
+                                augment=bool(data.augment), crop=data.crop, num_workers=int(data.num_workers), seed=int(cfg.seed),
+                                max_val_items=data.max_val_items, baselines=bool(data.baselines),
+                                baseline_cells=int(data.baseline_cells))
+    model = hydra.utils.instantiate(cfg.model, _convert_="all")
+    checkpoints = run_dir / "checkpoints"
+    timer = StepTimer()
+    callbacks = [
+        ModelCheckpoint(dirpath=checkpoints, save_last=True, save_top_k=0, every_n_train_steps=int(cfg.checkpoint_every_n_steps)),
+        ModelCheckpoint(dirpath=checkpoints, filename="best", monitor="val/l1", mode="min", save_top_k=1),
+        timer,
+    ]
+    logger = hydra.utils.instantiate(cfg.logger)
+    trainer = hydra.utils.instantiate(cfg.trainer, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir))
+    last = checkpoints / "last.ckpt"
+    resume_from = str(last) if cfg.resume and last.is_file() else None
+    if resume_from:
+        print(f"[train] resuming from {last}", file=sys.stderr)
+    start = time.perf_counter()
+    trainer.fit(model, datamodule=datamodule, ckpt_path=resume_from)
+    metrics = {key: round(float(value), 6) for key, value in trainer.callback_metrics.items() if key.startswith("val/")}
+    summary = {"run_dir": str(run_dir), "resumed_from": resume_from, "global_step": trainer.global_step,
+               "epochs": trainer.current_epoch, "seconds_this_run": round(time.perf_counter() - start, 1),
+               "median_step_seconds": round(statistics.median(timer.seconds), 4) if timer.seconds else None,
+               "batch_size": int(data.batch_size), "threads": torch.get_num_threads(),
+               "train_pairs": len(datamodule.train_set), "val_pairs": len(datamodule.val_set),
+               "val_metrics": metrics, "baselines": datamodule.baseline_metrics,
+               "checkpoints": {"last": str(last), "best": callbacks[1].best_model_path or None}}
+    run_dir.mkdir(parents=True, exist_ok=True)
+    from synthesis.atomic import atomic_write_text
+
+    atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+@hydra.main(config_path="pkg://conf", config_name="train", version_base=None)
+def main(cfg: DictConfig) -> None:
+    try:
+        summary = train(cfg)
+    except (PatternshopError, OSError) as exc:
+        if cfg.get("debug"):
+            raise
+        print(f"train.py: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    print(json.dumps(summary, indent=2))

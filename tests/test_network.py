@@ -1,0 +1,208 @@
+"""The network (issue 6): shapes and ranges, the two branches, overfitting one batch, data, baselines, train.py."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from data_gen.pairs import generate
+from data_gen.provenance import compose_config
+from data_gen.shards import load_pairs
+from patternshop_nn.baselines import density_mae, kde_density, latent_mae, windowed_latent
+from patternshop_nn.data import PairDataModule, PairDataset, dihedral, split_items
+from patternshop_nn.module import Pix2PixModule
+from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator
+from synthesis.generators import generate as generate_points
+from synthesis.palette import ab_to_latent, load_palette
+from synthesis.raster import point_raster
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY_MODEL = ["model.base_channels=4", "model.max_channels=8", "model.disc_channels=4"]
+TINY_PAIRS = ["pairs.num_items=8", "pairs.workers=1", "pairs.map_size=64", "pairs.raster_size=64",
+              "pairs.synthesis.points_per_ink=1500", "pairs.synthesis.iterations=10"]
+
+
+@pytest.fixture(scope="module")
+def pair_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """8 procedural pairs of 64 x 64 (made once for this module)."""
+    folder = tmp_path_factory.mktemp("pairs")
+    generate(compose_config("pairs", [f"out_dir={folder}", "num_items=8", "workers=1", "map_size=64", "raster_size=64",
+                                      "synthesis.points_per_ink=1500", "synthesis.iterations=10"]))
+    return folder
+
+
+# --- networks --------------------------------------------------------------------
+@pytest.mark.parametrize("side", [64, 128])
+def test_generator_shape_and_range(side: int) -> None:
+    net = DualBranchUNet(base_channels=4, max_channels=16).eval()
+    with torch.no_grad():
+        out = net(torch.rand(2, 1, side, side))
+    assert out.shape == (2, 3, side, side)
+    assert out.min() >= 0 and out.max() <= 1
+
+
+def test_generator_needs_a_multiple_of_64() -> None:
+    with pytest.raises(ValueError, match="divisible by 64"):
+        DualBranchUNet(base_channels=4, max_channels=8)(torch.rand(1, 1, 96, 96))
+
+
+def test_branches_are_separate() -> None:
+    """Channel 0 comes from the density decoder alone, channels 1-2 from the correlation decoder alone."""
+    net = DualBranchUNet(base_channels=4, max_channels=8).eval()
+    x = torch.rand(1, 1, 64, 64)
+    with torch.no_grad():
+        before = net(x)
+        for parameter in net.correlation.parameters():
+            parameter.add_(torch.randn_like(parameter))
+        after = net(x)
+    assert torch.equal(before[:, 0], after[:, 0])
+    assert not torch.allclose(before[:, 1:], after[:, 1:])
+
+
+def test_discriminator_patches() -> None:
+    disc = PatchDiscriminator(4, base_channels=8, layers=3)
+    assert disc(torch.rand(2, 1, 128, 128), torch.rand(2, 3, 128, 128)).shape == (2, 1, 14, 14)
+
+
+def test_gan_loss_modes() -> None:
+    logits = torch.zeros(3, 1, 4, 4)
+    assert GANLoss("vanilla")(logits, True).item() == pytest.approx(np.log(2), rel=1e-5)
+    assert GANLoss("lsgan")(logits, True).item() == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="unknown GAN loss"):
+        GANLoss("wgan")
+
+
+class _StepLosses(L.Callback):
+    def __init__(self) -> None:
+        self.l1: list[float] = []
+
+    def on_train_batch_end(self, trainer, module, outputs, batch, batch_index) -> None:  # noqa: ANN001
+        self.l1.append(float(trainer.callback_metrics["train/l1_step"]))
+
+
+def test_one_batch_overfits() -> None:
+    """The full GAN step (both optimisers) drives the L1 loss on one fixed batch down by at least half."""
+    torch.manual_seed(0)
+    raster = (torch.rand(4, 1, 64, 64) < torch.linspace(0.05, 0.3, 4).view(4, 1, 1, 1)).float()  # 4 densities
+    level = raster.mean(dim=(1, 2, 3)).view(4, 1, 1, 1).expand(4, 1, 64, 64)
+    target = torch.cat([1 - 2 * level, 0.3 + level, torch.full_like(level, 0.6)], 1)
+    loader = DataLoader(TensorDataset(raster, target), batch_size=4)
+    model = Pix2PixModule(base_channels=8, max_channels=16, disc_channels=4, lr=2e-3)
+    losses = _StepLosses()
+    trainer = L.Trainer(max_steps=2 * 50, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, callbacks=[losses])
+    trainer.fit(model, train_dataloaders=loader)
+    assert len(losses.l1) == 50
+    assert np.mean(losses.l1[-5:]) <= 0.5 * losses.l1[0]
+
+
+# --- data ------------------------------------------------------------------------
+def test_dihedral_group() -> None:
+    x = torch.arange(12.0).reshape(1, 3, 4)
+    images = {tuple(dihedral(torch.arange(16.0).reshape(1, 4, 4), code).flatten().tolist()) for code in range(8)}
+    assert len(images) == 8
+    assert torch.equal(dihedral(x, 4), x.transpose(-1, -2))
+
+
+def test_split_is_fixed_by_item_number() -> None:
+    train, val = split_items(np.arange(40), 0.1)
+    assert val.tolist() == [9, 19, 29, 39] and len(train) == 36
+    # more items keep the old split
+    train2, val2 = split_items(np.arange(60), 0.1)
+    assert set(val.tolist()) <= set(val2.tolist())
+    with pytest.raises(ValueError):
+        split_items(np.arange(5), 1.5)
+
+
+def test_crops_and_symmetries_keep_raster_and_map_aligned(pair_dir: Path) -> None:
+    pairs = load_pairs(pair_dir)
+    pairs.target[..., 1] = np.rint(pairs.raster.astype(np.float32) * 255).clip(0, 255).astype(np.uint8)  # map channel a = raster
+    dataset = PairDataset(pairs, augment=True, crop=32, seed=3)
+    for k in range(len(dataset)):
+        raster, target = dataset[k]
+        assert raster.shape == (1, 32, 32) and target.shape == (3, 32, 32)
+        assert torch.allclose(target[1], torch.round(raster[0] * 255) / 255, atol=1e-6)
+
+
+def test_datamodule_and_cached_baselines(pair_dir: Path) -> None:
+    module = PairDataModule(pair_dir, batch_size=2, val_fraction=0.25, baseline_cells=2)
+    module.setup("fit")
+    assert len(module.train_set) == 6 and len(module.val_set) == 2
+    raster, target = next(iter(module.train_dataloader()))
+    assert raster.shape == (2, 1, 64, 64) and target.shape == (2, 3, 64, 64)
+    assert 0 <= float(target.min()) and float(target.max()) <= 1
+    metrics = module.baseline_metrics
+    assert set(metrics) == {"kde_density_mae", "kde_bandwidth_px", "baseline_latent_mae", "pairs"}
+    assert 0 < metrics["kde_density_mae"] < 0.5 and metrics["pairs"] == 2
+    cached = json.loads((pair_dir / "baselines.json").read_text())
+    assert cached["metrics"] == metrics
+
+
+# --- baselines -------------------------------------------------------------------
+def test_kde_recovers_a_flat_density() -> None:
+    rng = np.random.default_rng(0)
+    points_per_ink, density = 8000, 0.4  # the default model's scale: 0.05 points per pixel, the clip never binds
+    xy = rng.random((int(points_per_ink * density), 2))
+    estimate = kde_density(point_raster(xy, 256), points_per_ink, 4.0)
+    assert abs(float(estimate[16:-16, 16:-16].mean()) - density) < 0.02
+
+
+def test_metrics() -> None:
+    target = np.zeros((3, 4, 4))
+    target[0, :, :2] = 1.0  # left half white: no density, latent not counted
+    predicted = target.copy()
+    predicted[1:, :, :2] += 0.5  # error where white only
+    assert latent_mae(predicted, target) == 0.0
+    predicted[1, :, 2:] += 0.2
+    assert latent_mae(predicted, target) == pytest.approx(0.1)
+    assert density_mae(predicted, target) == 0.0
+
+
+def test_windowed_latent_finds_blue_noise() -> None:
+    palette = load_palette()
+    blue = ab_to_latent(np.array(palette.preset_ab()["blue"]))
+    red = ab_to_latent(np.array(palette.preset_ab()["red"]))
+    field = windowed_latent(generate_points("blue", 2000, seed=1), 64, palette, cells=2)
+    assert field.shape == (64, 64, 2)
+    assert np.linalg.norm(field.reshape(-1, 2).mean(0) - blue) < np.linalg.norm(blue - red) / 2
+
+
+# --- train.py ----------------------------------------------------------------------
+def _train(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
+    args = [sys.executable, str(ROOT / "train.py"), f"run_dir={tmp_path / 'run'}", f"pairs.out_dir={tmp_path / 'pairs'}",
+            *TINY_PAIRS, *TINY_MODEL, "data.batch_size=2", "data.val_fraction=0.25", "data.crop=null",
+            "data.baseline_cells=2", "trainer.enable_progress_bar=false", "checkpoint_every_n_steps=2", *extra]
+    return subprocess.run(args, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+
+
+def test_train_end_to_end_and_resume(tmp_path: Path) -> None:
+    first = _train(tmp_path, "trainer.max_epochs=1")
+    assert first.returncode == 0, first.stderr[-2000:]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["global_step"] == 6  # 3 batches x 2 optimiser steps
+    assert (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
+    assert (tmp_path / "run" / "checkpoints" / "best.ckpt").is_file()
+    assert list((tmp_path / "run" / "logs").glob("version_*/samples/epoch0000.png"))
+    assert {"val/density_mae", "val/latent_mae", "val/kde_density_mae", "val/baseline_latent_mae"} <= set(summary["val_metrics"])
+
+    second = _train(tmp_path, "trainer.max_epochs=2")
+    assert second.returncode == 0, second.stderr[-2000:]
+    resumed = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert resumed["resumed_from"].endswith("last.ckpt")
+    assert resumed["global_step"] == 12 and resumed["epochs"] == 2
+
+
+def test_train_user_error_is_one_line(tmp_path: Path) -> None:
+    result = subprocess.run([sys.executable, str(ROOT / "train.py"), "dataset=faces", f"run_dir={tmp_path / 'run'}"],
+                            capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("train.py: error: dataset faces: set dataset.root=")
