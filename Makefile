@@ -9,6 +9,9 @@ STAMP := $(VENV)/.patternshop-installed
 # pip's local-index warnings about missing mirror folders are noise; real errors still fail the pipe.
 PIP_QUIET := 2>&1 | { grep -v "is ignored: it is neither a file nor a directory" || true; }
 PS := $(BIN)/patternshop
+# torch threads of the demo's syntheses: on a 2-core machine busy with anything else, a 2-thread OpenMP team
+# slows synthesis tenfold or more; on an idle machine `make demo DEMO_THREADS=2` may be faster.
+DEMO_THREADS ?= 1
 
 .PHONY: setup demo test bench examples clean
 
@@ -23,11 +26,13 @@ $(STAMP): pyproject.toml
 
 demo: setup
 	@mkdir -p out
-	$(PS) synthesize examples/logo.tif out/logo.txt --png out/logo.png --svg out/logo.svg --report out/logo.json --no-progress
-	$(PS) synthesize examples/gradient.tif out/gradient.txt --png out/gradient.png --svg out/gradient.svg --dot-sizes --report out/gradient.json --no-progress
+	OMP_NUM_THREADS=$(DEMO_THREADS) $(BIN)/python examples/demo.py --out out/demo --threads $(DEMO_THREADS)
+	OMP_NUM_THREADS=$(DEMO_THREADS) $(PS) synthesize examples/logo.tif out/logo.txt --png out/logo.png --svg out/logo.svg --report out/logo.json --no-progress
+	OMP_NUM_THREADS=$(DEMO_THREADS) $(PS) synthesize examples/gradient.tif out/gradient.txt --png out/gradient.png --svg out/gradient.svg --dot-sizes --report out/gradient.json --no-progress
 	$(PS) preview examples/logo.tif out/logo_map.png --scale 2
 	$(PS) palette out/palette.png
-	@echo "demo outputs in out/: logo.{txt,png,svg}, gradient.{txt,png,svg} (with dot sizes), reports (*.json), palette.png"
+	@echo "demo outputs: out/demo/ (points -> map -> edit -> points: contact_sheet.png, summary.json, ...);"
+	@echo "  out/: logo.{txt,png,svg}, gradient.{txt,png,svg} (with dot sizes), reports (*.json), palette.png"
 
 test: setup
 	$(BIN)/python -m pytest -q

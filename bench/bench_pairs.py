@@ -27,13 +27,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench_synthesis import local_errors  # bench/ is on sys.path when run as a script
-from common import save_results
+from common import save_results  # bench/ is on sys.path when run as a script
 
 from data_gen.makers import build_maker
 from data_gen.pairs import generate
 from data_gen.provenance import compose_config
 from data_gen.shards import map_to_target, read_manifest, target_to_map
+from synthesis.edgepcf import local_errors
 from synthesis.points import PointSet
 from synthesis.synthesize import initial_points, point_count, synthesize
 from synthesis.tone import density_fidelity

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ import torch
 
 from common import save_results  # bench/ is on sys.path when run as a script
 
-from synthesis.edgepcf import estimate, find_neighbourhoods
+from synthesis.edgepcf import estimate, find_neighbourhoods, local_errors
 from synthesis.fields import MapFields
 from synthesis.labmap import LabMap
 from synthesis.mapio import read_map
@@ -35,14 +34,6 @@ def split_map(left: tuple[float, float, float], right: tuple[float, float, float
     lab[:, : size[1] // 2] = left
     lab[:, size[1] // 2 :] = right
     return LabMap(lab)
-
-
-def local_errors(lab_map: LabMap, points: np.ndarray, n: int) -> tuple[np.ndarray, MapFields]:
-    """Mean-over-radii |edge-aware PCF - target| at every point (guided estimator)."""
-    fields = MapFields.build(lab_map, n, load_palette())
-    xy = torch.from_numpy(points.astype(np.float32))
-    hood = find_neighbourhoods(fields, xy, torch.arange(len(xy)))
-    return (estimate(fields, xy, hood) - hood.target).abs().mean(dim=1).numpy(), fields
 
 
 def unbiasedness(realisations: int) -> dict:

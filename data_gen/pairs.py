@@ -29,7 +29,6 @@ import json
 import multiprocessing
 import sys
 import time
-from collections import defaultdict
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path

@@ -8,6 +8,10 @@
   correlation moving smoothly from blue noise (top) to green noise (bottom).
 
 Each map is written as a 16-bit CIELAB TIFF with an sRGB preview PNG beside it.
+Then, for each map named in ``points.maps``, the synthesiser (fast schedule,
+fixed seed) turns the written TIFF into ``NAME_points.txt``: ``logo_points.txt``
+(about 7,200 points at 20,000 points per ink) is the input pattern of the demo
+loop, ``examples/demo.py``.
 Usage: ``python examples/make_examples.py [key=value ...]`` (Hydra overrides).
 """
 
@@ -17,12 +21,15 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
 from synthesis.labmap import LabMap
-from synthesis.mapio import write_map, write_preview
+from synthesis.mapio import read_map, write_map, write_preview
 from synthesis.palette import load_palette
+from synthesis.points import write_points
+from synthesis.synthesize import point_count, synthesize
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
@@ -92,6 +99,19 @@ def make_gradient(cfg: DictConfig, colors: dict[str, np.ndarray]) -> LabMap:
     return lab_from_parts(density, ab)
 
 
+def make_points(cfg: DictConfig, out_dir: Path, name: str) -> None:
+    """Synthesise ``out_dir/NAME_points.txt`` from ``out_dir/NAME.tif`` (the map as written, 16-bit quantised)."""
+    lab_map = read_map(out_dir / f"{name}.tif")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(cfg.threads)
+    try:
+        result = synthesize(lab_map, n=point_count(lab_map, cfg.points_per_ink), seed=cfg.seed)
+    finally:
+        torch.set_num_threads(threads)
+    write_points(result.points, out_dir / f"{name}_points.txt")
+    print(f"wrote {out_dir / name}_points.txt ({len(result.points)} points, {result.seconds:.1f} s)")
+
+
 def main(overrides: list[str]) -> None:
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         cfg = compose(config_name="examples", overrides=overrides)
@@ -102,6 +122,8 @@ def main(overrides: list[str]) -> None:
         write_map(lab_map, out_dir / f"{name}.tif", bits=cfg.bits)
         write_preview(lab_map, out_dir / f"{name}_preview.png", scale=cfg.preview_scale)
         print(f"wrote {out_dir / name}.tif and {name}_preview.png ({lab_map.width}x{lab_map.height})")
+    for name in cfg.points.maps:
+        make_points(cfg.points, out_dir, name)
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from scipy.ndimage import gaussian_filter
 from synthesis.errors import PatternshopError
 from synthesis.palette import Palette, ab_to_latent
 
-KDE_BANDWIDTHS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)  # pixels of the raster
+KDE_BANDWIDTHS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0)  # pixels of the raster
 MIN_WINDOW_POINTS = 128  # fewest points the perceptual decoder is given
 LATENT_MIN_DENSITY = 0.1
 

@@ -30,6 +30,8 @@ import torch
 from scipy.spatial import cKDTree
 
 from synthesis.fields import MapFields, guide_similarity
+from synthesis.labmap import LabMap
+from synthesis.palette import Palette
 from synthesis.pcf import KERNEL_SIGMA, NEIGHBOURS, neighbour_cutoff
 
 CHUNK = 8192  # centres per block, bounds the (chunk, k, m) temporaries
@@ -84,6 +86,21 @@ def _kernel_tables(radii: np.ndarray, sigma: float, cutoff: float) -> tuple[torc
 def estimate(fields: MapFields, xy: torch.Tensor, hood: Neighbourhoods, sigma: float = KERNEL_SIGMA) -> torch.Tensor:
     """Edge-aware PCF (C, m) at the centres of ``hood`` for positions xy (n, 2)."""
     return _objective(fields, xy, hood, sigma, gradient=False)[1]
+
+
+def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
+                 palette: Palette | None = None) -> tuple[np.ndarray, MapFields]:
+    """(n,) mean-over-radii |edge-aware PCF - target| at every point (n, 2) of a pattern on ``lab_map``, and the fields.
+
+    The map's target PCFs come from ``palette`` (default: the shipped one); ``n``
+    sets the map's point spacing (default: the pattern's own count).
+    """
+    from synthesis.palette import load_palette
+
+    fields = MapFields.build(lab_map, len(points) if n is None else n, palette or load_palette())
+    xy = torch.from_numpy(np.asarray(points, np.float32))
+    hood = find_neighbourhoods(fields, xy, torch.arange(len(xy)))
+    return (estimate(fields, xy, hood) - hood.target).abs().mean(dim=1).numpy(), fields
 
 
 def loss_and_gradient(

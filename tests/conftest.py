@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from patternshop import cli
 from synthesis.labmap import LabMap
 from synthesis.mapio import write_tiff
 
@@ -27,3 +28,13 @@ def map_tif(tmp_path: Path) -> Path:
     path = tmp_path / "map.tif"
     write_tiff(random_map(12, 18), path, bits=16)
     return path
+
+
+def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    """Run the ``patternshop`` CLI in-process; returns (exit status, stdout, stderr)."""
+    try:
+        status = cli.main(argv)
+    except SystemExit as exc:  # argparse's --help, --version and usage errors
+        status = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return status, out, err

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli as run
 from PIL import Image
 
 from patternshop import cli
@@ -22,16 +23,6 @@ MALFORMED_POINT_FILES = {
     "outside": ("0.1 0.2\n1.5 0.2\n", ":2: point (1.5, 0.2) lies outside the domain"),
     "empty": ("# nothing here\n", "no points (empty file)"),
 }
-
-
-def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    """Run the CLI in-process; returns (exit status, stdout, stderr)."""
-    try:
-        status = cli.main(argv)
-    except SystemExit as exc:  # argparse's --help, --version and usage errors
-        status = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return status, out, err
 
 
 def test_help_lists_commands(capsys):

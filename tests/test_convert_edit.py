@@ -6,13 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli
 from PIL import Image
 
 from export.convert import FAILED, SKIPPED, WRITTEN, convert_points, map_files, point_files
 from export.edits import density_gradient, expand, linear_ramp, read_region, rect_region, resize, set_correlation
 from export.onnx import export_onnx
 from export.runtime import OnnxModel
-from patternshop import cli
 from patternshop_nn.networks import DualBranchUNet
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
@@ -23,11 +23,8 @@ from synthesis.points import PointSet, read_points, write_points
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
     """Run the CLI in-process; returns (exit status, stderr)."""
-    try:
-        status = cli.main(argv)
-    except SystemExit as exc:
-        status = int(exc.code or 0)
-    return status, capsys.readouterr().err
+    status, _, err = run_cli(argv, capsys)
+    return status, err
 
 
 def flat_map(height: int, width: int, L: float = 60.0, ab: tuple[float, float] = (10.0, -20.0)) -> LabMap:

@@ -8,12 +8,12 @@ import lightning
 import numpy as np
 import onnx
 import pytest
+from conftest import run_cli
 import torch
 
 from data_gen.provenance import file_sha256
 from export.onnx import OPSET, export_onnx, max_abs_difference
 from export.runtime import OnnxModel, check_palette, pattern_raster, points_to_map
-from patternshop import cli
 from patternshop_nn.module import Pix2PixModule
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.mapio import read_map
@@ -26,11 +26,8 @@ CARD = {"name": "tiny", "dataset": "test", "points_per_ink": 8000, "notes": {"st
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
     """Run the CLI in-process; returns (exit status, stderr)."""
-    try:
-        status = cli.main(argv)
-    except SystemExit as exc:
-        status = int(exc.code or 0)
-    return status, capsys.readouterr().err
+    status, _, err = run_cli(argv, capsys)
+    return status, err
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,153 @@
+"""Held-out evaluation of an exported model against the non-learned baselines, and the edit-loop round trip.
+
+``python -m patternshop_nn.evaluate --model patternshop_nn/assets/default.onnx --out eval.json``
+
+1. **Held-out procedural pairs**: made with another seed than the training
+   set (``--seed``, default 1000) by ``data_gen.pairs``, into ``--data``.
+2. **Stand-ins of each real layout** (faces, animals, churches, treecover;
+   :mod:`data_gen.standins`), made into pairs by their own readers.
+3. For each set: the model's ``density_mae`` and ``latent_mae``
+   (:mod:`patternshop_nn.baselines`) beside the KDE density (best bandwidth)
+   and the palette-decoding correlation baseline on the same pairs, and the
+   relative gains.
+4. **Round trip** on ``--roundtrip`` held-out pairs (issue 7): points → infer
+   → synthesise (same point count) → points, scored against the pair's true
+   map: density SSIM (:func:`synthesis.tone.density_fidelity`) and local PCF
+   error (mean |edge-aware PCF − target| over points and radii), beside the
+   same scores of the original points.
+
+Pairs are cached in ``--data`` (resumable), so a rerun only re-scores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from data_gen.shards import Pairs, load_pairs
+from export.runtime import OnnxModel
+from patternshop_nn.baselines import density_mae, evaluate_baselines, latent_mae
+from synthesis.errors import PatternshopError
+
+STANDIN_LAYOUTS = ("faces", "animals", "churches", "treecover")
+
+
+def predict_pairs(model: OnnxModel, pairs: Pairs, batch_size: int = 8) -> np.ndarray:
+    """(K, 3, S, S) model outputs for the pairs' rasters (made at the model's own scale)."""
+    outputs = [model.predict(pairs.raster[k : k + batch_size, None].astype(np.float32)) for k in range(0, len(pairs), batch_size)]
+    return np.concatenate(outputs)
+
+
+def score(model: OnnxModel, pairs: Pairs, points_per_ink: float, cells: int = 4) -> dict:
+    """Model vs baselines on pairs: MAEs and the model's relative gains (positive: the model is better)."""
+    from synthesis.palette import load_palette
+
+    targets = pairs.target.transpose(0, 3, 1, 2).astype(np.float32) / 255.0
+    predicted = predict_pairs(model, pairs)
+    baselines = evaluate_baselines(pairs.raster, [pairs.points_of(k) for k in range(len(pairs))], targets, points_per_ink,
+                                   load_palette(), cells)
+    model_density, model_latent = density_mae(predicted, targets), latent_mae(predicted, targets)
+    return {"pairs": len(pairs), "model_density_mae": round(model_density, 5), "model_latent_mae": round(model_latent, 5),
+            **baselines,
+            "density_gain_vs_kde": round(1 - model_density / baselines["kde_density_mae"], 4),
+            "latent_gain_vs_baseline": round(1 - model_latent / baselines["baseline_latent_mae"], 4),
+            "per_pair_model_density_mae": [round(density_mae(p, t), 4) for p, t in zip(predicted, targets, strict=True)],
+            "per_pair_model_latent_mae": [round(latent_mae(p, t), 4) for p, t in zip(predicted, targets, strict=True)]}
+
+
+def make_pairs(out_dir: Path, dataset: list[str], items: int, seed: int, workers: int) -> Pairs:
+    """Pairs of ``dataset`` overrides into ``out_dir`` (resumable), at the default pair settings."""
+    from data_gen.pairs import generate
+    from data_gen.provenance import compose_config
+
+    generate(compose_config("pairs", [*dataset, f"out_dir={out_dir}", f"num_items={items}", f"seed={seed}", f"workers={workers}"]))
+    return load_pairs(out_dir)
+
+
+def round_trip(model: OnnxModel, pairs: Pairs, points_per_ink: float, count: int) -> dict:
+    """Scores of points → infer → synthesise against the true maps, beside the original points' (see module docstring)."""
+    from data_gen.shards import target_to_map
+    from export.runtime import points_to_map
+    from synthesis.palette import load_palette
+    from synthesis.points import PointSet
+    from synthesis.synthesize import synthesize
+    from synthesis.edgepcf import local_errors
+    from synthesis.tone import density_fidelity
+
+    rows = []
+    for k in range(min(count, len(pairs))):
+        truth = target_to_map(pairs.target[k])
+        original = PointSet(pairs.points_of(k).astype(np.float64), truth.domain)
+        inferred = points_to_map(original, model, points_per_ink=points_per_ink)
+        result = synthesize(inferred, n=len(original), palette=load_palette(), seed=k).points
+        row = {}
+        for name, points in (("original", original), ("round_trip", result)):
+            errors, _ = local_errors(truth, points.xy, len(points))
+            row[name] = (float(np.mean(errors)), density_fidelity(points, truth)["ssim"])
+        rows.append(row)
+    summary = {"pairs": len(rows)}
+    for name in ("original", "round_trip"):
+        error, ssim = np.array([row[name] for row in rows]).T
+        summary[name] = {"local_pcf_error_mean": round(float(error.mean()), 4), "density_ssim_mean": round(float(ssim.mean()), 4)}
+    return summary
+
+
+def evaluate(model_path: str | None, data: Path, items: int, standin_items: int, roundtrip: int, seed: int, workers: int) -> dict:
+    from data_gen.standins import write_standin
+
+    model = OnnxModel(model_path, threads=2)
+    points_per_ink = model.points_per_ink
+    if points_per_ink is None:
+        raise PatternshopError(f"{model.path} does not record the points_per_ink it was trained at")
+    start = time.perf_counter()
+    heldout = make_pairs(data / "procedural", ["dataset=procedural", f"synthesis.points_per_ink={points_per_ink}"],
+                         items, seed, workers)
+    results = {"model": str(model.path), "metadata": model.metadata, "held_out_seed": seed,
+               "procedural": score(model, heldout, points_per_ink)}
+    for layout in STANDIN_LAYOUTS:
+        root = data / "standins" / layout
+        if not root.exists():
+            write_standin(layout, root, standin_items, seed=seed)
+        pairs = make_pairs(data / f"pairs-{layout}", [f"dataset={layout}", f"dataset.root={root}",
+                                                      f"synthesis.points_per_ink={points_per_ink}"], standin_items * 2, seed, workers)
+        results[f"standin_{layout}"] = score(model, pairs, points_per_ink)
+    if roundtrip:
+        results["round_trip"] = round_trip(model, heldout, points_per_ink, roundtrip)
+    results["seconds"] = round(time.perf_counter() - start, 1)
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m patternshop_nn.evaluate", description=__doc__.split("\n\n")[0],
+                                     epilog=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", help="ONNX model (default: the shipped one)")
+    parser.add_argument("--out", required=True, help="JSON file for the results")
+    parser.add_argument("--data", default="data/eval", help="folder for the held-out pairs and stand-ins (default data/eval)")
+    parser.add_argument("--items", type=int, default=48, help="held-out procedural pairs (default 48)")
+    parser.add_argument("--standin-items", type=int, default=6, help="pictures per stand-in layout (default 6)")
+    parser.add_argument("--roundtrip", type=int, default=8, help="pairs for the round trip (default 8; 0 skips it)")
+    parser.add_argument("--seed", type=int, default=1000, help="seed of the held-out data (default 1000; training uses 0)")
+    parser.add_argument("--workers", type=int, default=2, help="pair-generation processes (default 2)")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    args = parser.parse_args(argv)
+    try:
+        results = evaluate(args.model, Path(args.data), args.items, args.standin_items, args.roundtrip, args.seed, args.workers)
+    except (PatternshopError, OSError) as exc:
+        if args.debug:
+            raise
+        print(f"python -m patternshop_nn.evaluate: error: {exc}", file=sys.stderr)
+        return 2
+    from synthesis.atomic import atomic_write_text
+
+    atomic_write_text(Path(args.out), json.dumps(results, indent=2) + "\n")
+    print(json.dumps({key: value for key, value in results.items() if key != "metadata"}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
