@@ -206,3 +206,34 @@ def test_train_user_error_is_one_line(tmp_path: Path) -> None:
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("train.py: error: dataset faces: set dataset.root=")
+
+
+# --- stand-ins and evaluation --------------------------------------------------------
+@pytest.mark.parametrize("layout", ["faces", "animals", "churches", "folder", "treecover"])
+def test_standins_are_read_by_their_makers(layout: str, tmp_path: Path) -> None:
+    from data_gen.makers import build_maker
+    from data_gen.standins import write_standin
+
+    root = write_standin(layout, tmp_path / layout, count=3, size=64)
+    config = {"name": layout, "root": str(root)}
+    if layout == "treecover":
+        config["tile"] = 64
+    maker = build_maker(config, 32)
+    assert len(maker) == (6 if layout == "faces" else 3)  # faces: a uniform and a per-segment map per picture
+    lab_map = maker.make(len(maker) - 1, np.random.default_rng(0))
+    assert lab_map.lab.shape == (32, 32, 3)
+    if layout == "faces":  # the per-segment map of a picture with several regions has several latents
+        latents = np.unique(np.round(lab_map.latent().reshape(-1, 2), 4), axis=0)
+        assert len(latents) >= 2
+
+
+def test_score_compares_the_model_with_the_baselines(pair_dir: Path, tmp_path: Path) -> None:
+    from export.onnx import export_onnx
+    from export.runtime import OnnxModel
+    from patternshop_nn.evaluate import score
+
+    export_onnx(Pix2PixModule(base_channels=4, max_channels=8), tmp_path / "tiny.onnx", {"points_per_ink": 1500})
+    result = score(OnnxModel(tmp_path / "tiny.onnx"), load_pairs(pair_dir), 1500, cells=2)
+    assert result["pairs"] == 8 and len(result["per_pair_model_density_mae"]) == 8
+    assert result["density_gain_vs_kde"] == pytest.approx(1 - result["model_density_mae"] / result["kde_density_mae"], abs=1e-3)
+    assert 0 < result["kde_density_mae"] < 0.5 and 0 < result["baseline_latent_mae"] < 0.5
