@@ -60,14 +60,16 @@ OUTPUTS = ("input_points.png", "inferred.tif", "inferred.png", "edited.tif", "ed
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineErrorParser(prog=PROG, description=__doc__.split("\n\n")[0],
-                                epilog="Example (a fast smoke run): python examples/demo.py --out /tmp/demo --iterations 20 --size 256")
+    parser = OneLineErrorParser(
+        prog=PROG, description=__doc__.split("\n\n")[0],
+        epilog="Example (a fast smoke run): python examples/demo.py --out /tmp/demo --iterations 20 --size 256")
     parser.add_argument("--points", default=str(DEFAULT_POINTS), metavar="FILE",
                         help="input point file (default examples/logo_points.txt)")
     parser.add_argument("--model", metavar="FILE", help=f"ONNX model (default the shipped {DEFAULT_MODEL.relative_to(ROOT)})")
     parser.add_argument("--out", default="out/demo", metavar="DIR", help="output folder (default out/demo; created if missing)")
     parser.add_argument("--points-per-ink", type=float, default=20_000, metavar="K",
-                        help="points of a fully dark map: the scale the input is read at and the output synthesised at (default 20000)")
+                        help="points of a fully dark map: the scale the input is read at and the output "
+                        "synthesised at (default 20000)")
     parser.add_argument("--iterations", type=int, metavar="K", help="synthesis iterations (default: the fast schedule's 250)")
     parser.add_argument("--size", type=int, default=384, metavar="PX", help="width of each contact-sheet panel (default 384)")
     parser.add_argument("--png-width", type=int, default=1024, metavar="PX", help="width of the point renderings (default 1024)")
@@ -77,7 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gradient", nargs=2, type=float, default=(0.05, 0.35), metavar=("TOP", "BOTTOM"),
                         help="background density at the top and at the bottom of the map (default 0.05 0.35)")
     parser.add_argument("--threads", type=int, default=1, metavar="N",
-                        help="torch threads for the synthesis and ONNX Runtime threads (default 1; 2 is faster on an idle 2-core machine)")
+                        help="torch threads for the synthesis and ONNX Runtime threads (default 1; 2 may be faster "
+                        "on an idle machine)")
     parser.add_argument("--seed", type=int, default=0, help="synthesis seed (default 0)")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     return parser
@@ -199,7 +202,8 @@ def run(args: argparse.Namespace, model_path: Path) -> dict:
         "model": {"path": str(model_path), "name": model.metadata.get("name"), "trained_points_per_ink": model.points_per_ink,
                   "threads": args.threads, "raster_side_px": raster_side},
         "points_per_ink": args.points_per_ink,
-        "inferred_map": {"width": inferred.width, "height": inferred.height, "mean_density": round(float(inferred.density().mean()), 4)},
+        "inferred_map": {"width": inferred.width, "height": inferred.height,
+                         "mean_density": round(float(inferred.density().mean()), 4)},
         "edit": {"preset": args.preset, "ab": [round(float(v), 2) for v in presets[args.preset]],
                  "background": f"inferred density < {args.background_below:g}",
                  "background_fraction": round(float(region.mean()), 4),
