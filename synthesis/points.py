@@ -117,13 +117,17 @@ def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] 
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise PointFileError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
+    lines = text.split("\n")
+    plain = _parse_plain(path, lines)
+    if plain is not None:
+        return plain
     values: list[list[float]] = []
     rows: list[int] = []
     domain = None
     columns = 0
     # split at "\n" only: read_text already turned CRLF and CR into "\n", and
     # str.splitlines() would also break at form feeds and Unicode separators
-    for number, line in enumerate(text.split("\n"), start=1):
+    for number, line in enumerate(lines, start=1):
         content, _, comment = line.partition("#")
         match = _DOMAIN_COMMENT.match(comment)
         if match:
@@ -147,6 +151,37 @@ def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] 
             raise PointFileError(f"{path}:{number}: '{bad}' is not a number") from None
         rows.append(number)
     return np.array(values, dtype=np.float64).reshape(-1, columns or 2), rows, domain
+
+
+def _parse_plain(path: Path, lines: list[str]) -> tuple[np.ndarray, list[int], tuple[float, float] | None] | None:
+    """Fast path for the common file: numbers only, one separator kind, whole-line comments; None otherwise.
+
+    Anything unusual (a header, inline comments, mixed separators, a malformed
+    line) returns None, and the line-by-line parser reads the file and names the
+    line at fault.
+    """
+    rows, data, domain = [], [], None
+    for number, line in enumerate(lines, start=1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            match = _DOMAIN_COMMENT.match(stripped[1:])
+            if match:
+                domain = _parse_domain_comment(path, number, match.groups())
+            continue
+        rows.append(number)
+        data.append(stripped)
+    if not data or any("#" in line for line in data):
+        return None
+    comma = "," in data[0]
+    if any(("," in line) != comma for line in data):
+        return None
+    try:
+        values = np.loadtxt(data, delimiter="," if comma else None, dtype=np.float64, ndmin=2)
+    except ValueError:
+        return None
+    return (values, rows, domain) if values.shape[1] in (2, 3) else None
 
 
 def _split_fields(path: Path, number: int, content: str) -> list[str]:
