@@ -20,9 +20,12 @@ is not observable and any value is as good as another.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from data_gen.shards import Pairs
 from synthesis.errors import PatternshopError
 from synthesis.palette import Palette, ab_to_latent
 
@@ -99,3 +102,33 @@ def evaluate_baselines(rasters: np.ndarray, points: list[np.ndarray], targets: n
     predicted = np.concatenate([np.asarray(targets)[:, :1], latents], axis=1)
     return {"kde_density_mae": round(errors[best], 5), "kde_bandwidth_px": best,
             "baseline_latent_mae": round(latent_mae(predicted, targets), 5), "pairs": len(rasters)}
+
+
+def cached_baselines(folder: str | Path, pairs: Pairs, positions: np.ndarray, cells: int = 4) -> dict:
+    """:func:`evaluate_baselines` on ``pairs[positions]`` of a pair folder, cached in ``<folder>/baselines.json``.
+
+    The points per ink and the palette come from the folder's manifest; the
+    cache is keyed by the items, ``cells`` and the folder's config key (the
+    baselines never change for the same pairs).
+    """
+    import json
+
+    from data_gen.shards import read_manifest
+    from synthesis.atomic import atomic_write_text
+    from synthesis.palette import load_palette
+
+    folder = Path(folder)
+    manifest = read_manifest(folder) or {}
+    settings = manifest.get("settings", {})
+    positions = np.asarray(positions)
+    key = {"items": [int(i) for i in pairs.item[positions]], "cells": cells, "config_key": manifest.get("config_key")}
+    cache = folder / "baselines.json"
+    if cache.is_file():
+        cached = json.loads(cache.read_text())
+        if cached.get("key") == key:
+            return cached["metrics"]
+    targets = pairs.target[positions].transpose(0, 3, 1, 2).astype(np.float32) / 255.0
+    metrics = evaluate_baselines(pairs.raster[positions], [pairs.points_of(int(k)) for k in positions], targets,
+                                 float(settings.get("points_per_ink", 8000)), load_palette(settings.get("palette")), cells)
+    atomic_write_text(cache, json.dumps({"key": key, "metrics": metrics}, indent=2) + "\n")
+    return metrics

@@ -22,6 +22,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from data_gen.shards import Pairs, load_pairs
+from patternshop_nn.baselines import cached_baselines
 
 
 def dihedral(tensor: torch.Tensor, code: int) -> torch.Tensor:
@@ -109,32 +110,7 @@ class PairDataModule(L.LightningDataModule):
         self.train_set = PairDataset(self.pairs, train, augment=self.augment, crop=self.crop, seed=self.seed)
         self.val_set = PairDataset(self.pairs, val)
         if self.baselines:
-            self.baseline_metrics = self._baselines(val)
-
-    def _baselines(self, val: np.ndarray) -> dict:
-        """Baseline metrics on the validation pairs, cached in ``<pairs_dir>/baselines.json`` (they never change)."""
-        import json
-
-        from data_gen.shards import read_manifest
-        from patternshop_nn.baselines import evaluate_baselines
-        from synthesis.atomic import atomic_write_text
-        from synthesis.palette import load_palette
-
-        manifest = read_manifest(self.pairs_dir) or {}
-        settings = manifest.get("settings", {})
-        key = {"items": [int(i) for i in self.pairs.item[val]], "cells": self.baseline_cells,
-               "config_key": manifest.get("config_key")}
-        cache = self.pairs_dir / "baselines.json"
-        if cache.is_file():
-            cached = json.loads(cache.read_text())
-            if cached.get("key") == key:
-                return cached["metrics"]
-        targets = np.stack([self.val_set[k][1].numpy() for k in range(len(self.val_set))])
-        metrics = evaluate_baselines(self.pairs.raster[val], [self.pairs.points_of(int(k)) for k in val], targets,
-                                     float(settings.get("points_per_ink", 8000)), load_palette(settings.get("palette")),
-                                     self.baseline_cells)
-        atomic_write_text(cache, json.dumps({"key": key, "metrics": metrics}, indent=2) + "\n")
-        return metrics
+            self.baseline_metrics = cached_baselines(self.pairs_dir, self.pairs, val, self.baseline_cells)
 
     def train_dataloader(self) -> DataLoader:
         return DataLoader(self.train_set, batch_size=self.batch_size, shuffle=True, drop_last=len(self.train_set) > self.batch_size,

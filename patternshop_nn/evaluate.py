@@ -31,7 +31,7 @@ import numpy as np
 
 from data_gen.shards import Pairs, load_pairs
 from export.runtime import OnnxModel
-from patternshop_nn.baselines import density_mae, evaluate_baselines, latent_mae
+from patternshop_nn.baselines import cached_baselines, density_mae, latent_mae
 from synthesis.errors import PatternshopError
 
 STANDIN_LAYOUTS = ("faces", "animals", "churches", "treecover")
@@ -43,14 +43,12 @@ def predict_pairs(model: OnnxModel, pairs: Pairs, batch_size: int = 8) -> np.nda
     return np.concatenate(outputs)
 
 
-def score(model: OnnxModel, pairs: Pairs, points_per_ink: float, cells: int = 4) -> dict:
-    """Model vs baselines on pairs: MAEs and the model's relative gains (positive: the model is better)."""
-    from synthesis.palette import load_palette
-
+def score(model: OnnxModel, folder: Path, cells: int = 4) -> dict:
+    """Model vs baselines on a pair folder: MAEs and the model's relative gains (positive: the model is better)."""
+    pairs = load_pairs(folder)
     targets = pairs.target.transpose(0, 3, 1, 2).astype(np.float32) / 255.0
     predicted = predict_pairs(model, pairs)
-    baselines = evaluate_baselines(pairs.raster, [pairs.points_of(k) for k in range(len(pairs))], targets, points_per_ink,
-                                   load_palette(), cells)
+    baselines = cached_baselines(folder, pairs, np.arange(len(pairs)), cells)
     model_density, model_latent = density_mae(predicted, targets), latent_mae(predicted, targets)
     return {"pairs": len(pairs), "model_density_mae": round(model_density, 5), "model_latent_mae": round(model_latent, 5),
             **baselines,
@@ -60,13 +58,13 @@ def score(model: OnnxModel, pairs: Pairs, points_per_ink: float, cells: int = 4)
             "per_pair_model_latent_mae": [round(latent_mae(p, t), 4) for p, t in zip(predicted, targets, strict=True)]}
 
 
-def make_pairs(out_dir: Path, dataset: list[str], items: int, seed: int, workers: int) -> Pairs:
-    """Pairs of ``dataset`` overrides into ``out_dir`` (resumable), at the default pair settings."""
+def make_pairs(out_dir: Path, dataset: list[str], items: int, seed: int, workers: int) -> Path:
+    """Make (or complete) the pairs of ``dataset`` overrides in ``out_dir`` at the default pair settings; returns ``out_dir``."""
     from data_gen.pairs import generate
     from data_gen.provenance import compose_config
 
     generate(compose_config("pairs", [*dataset, f"out_dir={out_dir}", f"num_items={items}", f"seed={seed}", f"workers={workers}"]))
-    return load_pairs(out_dir)
+    return out_dir
 
 
 def round_trip(model: OnnxModel, pairs: Pairs, points_per_ink: float, count: int) -> dict:
@@ -107,17 +105,16 @@ def evaluate(model_path: str | None, data: Path, items: int, standin_items: int,
     start = time.perf_counter()
     heldout = make_pairs(data / "procedural", ["dataset=procedural", f"synthesis.points_per_ink={points_per_ink}"],
                          items, seed, workers)
-    results = {"model": str(model.path), "metadata": model.metadata, "held_out_seed": seed,
-               "procedural": score(model, heldout, points_per_ink)}
+    results = {"model": str(model.path), "metadata": model.metadata, "held_out_seed": seed, "procedural": score(model, heldout)}
     for layout in STANDIN_LAYOUTS:
         root = data / "standins" / layout
         if not root.exists():
             write_standin(layout, root, standin_items, seed=seed)
-        pairs = make_pairs(data / f"pairs-{layout}", [f"dataset={layout}", f"dataset.root={root}",
-                                                      f"synthesis.points_per_ink={points_per_ink}"], standin_items * 2, seed, workers)
-        results[f"standin_{layout}"] = score(model, pairs, points_per_ink)
+        folder = make_pairs(data / f"pairs-{layout}", [f"dataset={layout}", f"dataset.root={root}",
+                                                       f"synthesis.points_per_ink={points_per_ink}"], standin_items * 2, seed, workers)
+        results[f"standin_{layout}"] = score(model, folder)
     if roundtrip:
-        results["round_trip"] = round_trip(model, heldout, points_per_ink, roundtrip)
+        results["round_trip"] = round_trip(model, load_pairs(heldout), points_per_ink, roundtrip)
     results["seconds"] = round(time.perf_counter() - start, 1)
     return results
 

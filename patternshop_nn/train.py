@@ -8,7 +8,9 @@
    ``best.ckpt`` by validation L1). Rerunning the same command resumes from
    ``last.ckpt`` (``resume=false`` starts over).
 3. Writes ``${run_dir}/summary.json``: steps, epochs, wall time, median
-   training-step time, the last validation metrics and the baselines.
+   training-step time, the last validation metrics and the baselines (also
+   after Ctrl+C, which stops at the current step; ``last.ckpt`` is at most
+   ``checkpoint_every_n_steps`` steps old).
 
 User errors (missing dataset root, too few pairs...) are one line on stderr and
 exit status 2; ``HYDRA_FULL_ERROR=1`` or ``+debug=true`` shows the traceback.
@@ -87,9 +89,13 @@ def train(cfg: DictConfig) -> dict:
     if resume_from:
         print(f"[train] resuming from {last}", file=sys.stderr)
     start = time.perf_counter()
-    trainer.fit(model, datamodule=datamodule, ckpt_path=resume_from)
+    interrupted = False
+    try:
+        trainer.fit(model, datamodule=datamodule, ckpt_path=resume_from)
+    except SystemExit:  # Lightning's graceful stop on Ctrl+C ends in exit(1): still write the summary
+        interrupted = True
     metrics = {key: round(float(value), 6) for key, value in trainer.callback_metrics.items() if key.startswith("val/")}
-    summary = {"run_dir": str(run_dir), "resumed_from": resume_from, "global_step": trainer.global_step,
+    summary = {"run_dir": str(run_dir), "resumed_from": resume_from, "interrupted": interrupted, "global_step": trainer.global_step,
                "epochs": trainer.current_epoch, "seconds_this_run": round(time.perf_counter() - start, 1),
                "median_step_seconds": round(statistics.median(timer.seconds), 4) if timer.seconds else None,
                "batch_size": int(data.batch_size), "threads": torch.get_num_threads(),
@@ -100,6 +106,9 @@ def train(cfg: DictConfig) -> dict:
     from synthesis.atomic import atomic_write_text
 
     atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    if interrupted:
+        print(f"[train] interrupted; rerun the command to resume from {last}", file=sys.stderr)
+        sys.exit(130)
     return summary
 
 

@@ -233,7 +233,7 @@ def test_score_compares_the_model_with_the_baselines(pair_dir: Path, tmp_path: P
     from patternshop_nn.evaluate import score
 
     export_onnx(Pix2PixModule(base_channels=4, max_channels=8), tmp_path / "tiny.onnx", {"points_per_ink": 1500})
-    result = score(OnnxModel(tmp_path / "tiny.onnx"), load_pairs(pair_dir), 1500, cells=2)
+    result = score(OnnxModel(tmp_path / "tiny.onnx"), pair_dir, cells=2)
     assert result["pairs"] == 8 and len(result["per_pair_model_density_mae"]) == 8
     assert result["density_gain_vs_kde"] == pytest.approx(1 - result["model_density_mae"] / result["kde_density_mae"], abs=1e-3)
     assert 0 < result["kde_density_mae"] < 0.5 and 0 < result["baseline_latent_mae"] < 0.5
