@@ -18,7 +18,7 @@ from data_gen.shards import Pairs, load_pairs, target_to_map
 from synthesis.atomic import atomic_path
 from synthesis.errors import PatternshopError
 from synthesis.points import PointSet
-from synthesis.render import rasterize_dots
+from synthesis.render import dots_grey
 
 GAP = 6  # pixels between cells and between a cell's two panels
 LABEL_HEIGHT = 16
@@ -27,9 +27,8 @@ LABEL_HEIGHT = 16
 def pair_panels(pairs: Pairs, k: int, tile: int) -> tuple[np.ndarray, np.ndarray]:
     """(map preview, rendered points), each (tile, tile, 3) uint8, of pair k."""
     lab_map = target_to_map(pairs.target[k])
-    preview = Image.fromarray(np.rint(lab_map.to_srgb() * 255).astype(np.uint8)).resize((tile, tile), Image.Resampling.NEAREST)
-    ink = rasterize_dots(PointSet(pairs.points_of(k).astype(np.float64), lab_map.domain), tile)
-    dots = np.rint((1.0 - ink) * 255).astype(np.uint8)
+    preview = Image.fromarray(lab_map.to_srgb8()).resize((tile, tile), Image.Resampling.NEAREST)
+    dots = dots_grey(PointSet(pairs.points_of(k).astype(np.float64), lab_map.domain), tile)
     return np.asarray(preview), np.repeat(dots[..., None], 3, axis=-1)
 
 

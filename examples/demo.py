@@ -45,7 +45,7 @@ from synthesis.labmap import LabMap
 from synthesis.mapio import write_map, write_preview
 from synthesis.palette import load_palette
 from synthesis.points import PointSet, read_points, write_points
-from synthesis.render import rasterize_dots, render_png, write_svg
+from synthesis.render import dots_grey, render_png, write_svg
 from synthesis.synthesize import point_count, synthesize
 from synthesis.tone import density_fidelity
 
@@ -118,13 +118,11 @@ def edit_map(lab_map: LabMap, ab: tuple[float, float], below: float, gradient: t
 
 
 def map_panel(lab_map: LabMap, width: int, height: int) -> Image.Image:
-    rgb = np.rint(lab_map.to_srgb() * 255.0).astype(np.uint8)
-    return Image.fromarray(rgb).resize((width, height), Image.Resampling.BILINEAR)
+    return Image.fromarray(lab_map.to_srgb8()).resize((width, height), Image.Resampling.BILINEAR)
 
 
 def points_panel(points: PointSet, width: int) -> Image.Image:
-    grey = np.rint(255.0 * (1.0 - rasterize_dots(points, width))).astype(np.uint8)
-    return Image.fromarray(grey).convert("RGB")
+    return Image.fromarray(dots_grey(points, width)).convert("RGB")
 
 
 def sheet_size(size: int, domain: tuple[float, float]) -> tuple[int, int]:

@@ -134,7 +134,7 @@ def output_to_map(output: np.ndarray, domain: tuple[float, float], scale: float,
     """Decode one network output (3, S, S) in [0, 1]: crop to the domain's ``w R`` x ``h R`` pixels, resample to ``width``."""
     w, h = domain
     crop = np.asarray(output, np.float32)[:, : max(1, round(h * scale)), : max(1, round(w * scale))]
-    lab_map = LabMap(np.stack([100.0 * crop[0], 255.0 * crop[1] - 128.0, 255.0 * crop[2] - 128.0], axis=-1))
+    lab_map = LabMap.from_network(crop)
     return resize(lab_map, width) if width != lab_map.width else lab_map
 
 

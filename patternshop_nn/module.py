@@ -114,8 +114,7 @@ class Pix2PixModule(L.LightningModule):
         from synthesis.labmap import LabMap
 
         def srgb(maps: torch.Tensor) -> np.ndarray:
-            lab = maps.detach().cpu().numpy().transpose(1, 2, 0).astype(np.float64)
-            return LabMap(np.stack([lab[..., 0] * 100, lab[..., 1] * 255 - 128, lab[..., 2] * 255 - 128], -1)).to_srgb()
+            return LabMap.from_network(maps.detach().cpu().numpy()).to_srgb()
 
         rows = []
         for k in range(min(self.hparams.sample_images, len(raster))):

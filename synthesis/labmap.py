@@ -65,6 +65,12 @@ class LabMap:
         return cls(np.concatenate([L[..., None], ab], axis=-1))
 
     @classmethod
+    def from_network(cls, output: np.ndarray) -> LabMap:
+        """Build a map from the network's (3, H, W) output in [0, 1]: L/100, then the latent z (a, b)."""
+        output = np.asarray(output, dtype=np.float32)
+        return cls.from_density_latent(1.0 - output[0], output[1:].transpose(1, 2, 0))
+
+    @classmethod
     def from_srgb(cls, rgb: np.ndarray) -> LabMap:
         """Convert an sRGB image (H, W, 3) with values in [0, 1] (D65) to a map."""
         xyz = colour.RGB_to_XYZ(np.asarray(rgb, dtype=np.float64), "sRGB", apply_cctf_decoding=True)
@@ -108,6 +114,10 @@ class LabMap:
         xyz = colour.Lab_to_XYZ(self.lab.astype(np.float64), _D65)
         rgb = colour.XYZ_to_RGB(xyz, "sRGB", apply_cctf_encoding=True)
         return np.clip(rgb, 0.0, 1.0)
+
+    def to_srgb8(self) -> np.ndarray:
+        """(H, W, 3) uint8 sRGB of :meth:`to_srgb`, for previews."""
+        return np.rint(self.to_srgb() * 255.0).astype(np.uint8)
 
     def __repr__(self) -> str:
         w, h = self.domain

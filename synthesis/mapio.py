@@ -272,8 +272,7 @@ def write_preview(lab_map: LabMap, path: PathLike, scale: int = 1) -> None:
     """Write an 8-bit sRGB PNG of the map (out-of-gamut colours clipped), ``scale`` x enlarged."""
     if scale < 1:
         raise PatternshopError(f"preview scale must be >= 1, got {scale}")
-    rgb = np.rint(lab_map.to_srgb() * 255.0).astype(np.uint8)
-    image = Image.fromarray(rgb)
+    image = Image.fromarray(lab_map.to_srgb8())
     if scale > 1:
         image = image.resize((image.width * scale, image.height * scale), Image.Resampling.NEAREST)
     with atomic_path(path) as tmp:

@@ -145,10 +145,13 @@ def render_png(points: PointSet, path: PathLike, width_px: int = 1024, supersamp
 
     Grey level = round(255 (1 - coverage)) of :func:`rasterize_dots`.
     """
-    coverage = rasterize_dots(points, width_px, supersample)
-    grey = np.rint(255.0 * (1.0 - coverage)).astype(np.uint8)
     with atomic_path(path) as tmp:
-        Image.fromarray(grey).save(tmp, format="PNG")  # uint8 (H, W): mode "L"
+        Image.fromarray(dots_grey(points, width_px, supersample)).save(tmp, format="PNG")  # uint8 (H, W): mode "L"
+
+
+def dots_grey(points: PointSet, width_px: int, supersample: int = 4) -> np.ndarray:
+    """(H, W) uint8 dots black on white: round(255 (1 - coverage)) of :func:`rasterize_dots`."""
+    return np.rint(255.0 * (1.0 - rasterize_dots(points, width_px, supersample))).astype(np.uint8)
 
 
 def write_svg(

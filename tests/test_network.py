@@ -237,3 +237,12 @@ def test_score_compares_the_model_with_the_baselines(pair_dir: Path, tmp_path: P
     assert result["pairs"] == 8 and len(result["per_pair_model_density_mae"]) == 8
     assert result["density_gain_vs_kde"] == pytest.approx(1 - result["model_density_mae"] / result["kde_density_mae"], abs=1e-3)
     assert 0 < result["kde_density_mae"] < 0.5 and 0 < result["baseline_latent_mae"] < 0.5
+
+
+def test_network_output_decodes_to_lab() -> None:
+    from synthesis.labmap import LabMap
+
+    output = np.random.default_rng(0).random((3, 4, 5)).astype(np.float32)
+    lab_map = LabMap.from_network(output)
+    np.testing.assert_allclose(lab_map.L, 100 * output[0], atol=1e-4)
+    np.testing.assert_allclose(lab_map.ab, 255 * output[1:].transpose(1, 2, 0) - 128, atol=1e-4)
