@@ -37,10 +37,13 @@ def dihedral(tensor: torch.Tensor, code: int) -> torch.Tensor:
 
 
 class PairDataset(Dataset):
-    """Samples ``k`` of ``pairs`` (all when ``indices`` is None), optionally with random symmetries."""
+    """Samples ``k`` of ``pairs`` (all when ``indices`` is None), optionally with random crops and symmetries.
 
-    def __init__(self, pairs: Pairs, indices: np.ndarray | None = None, augment: bool = False, crop: int | None = None,
-                 seed: int = 0) -> None:
+    Randomness comes from torch's global generator, which ``L.seed_everything(seed, workers=True)`` seeds
+    differently in each data-loader worker (a private generator would repeat the same crops in every worker).
+    """
+
+    def __init__(self, pairs: Pairs, indices: np.ndarray | None = None, augment: bool = False, crop: int | None = None) -> None:
         self.pairs = pairs
         self.indices = np.arange(len(pairs)) if indices is None else np.asarray(indices)
         self.augment = augment
@@ -48,7 +51,6 @@ class PairDataset(Dataset):
         if crop is not None and not 0 < crop <= side:
             raise ValueError(f"crop must be in (0, {side}], got {crop}")
         self.crop = None if crop in (None, side) else crop
-        self.generator = torch.Generator().manual_seed(seed)
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -58,11 +60,11 @@ class PairDataset(Dataset):
         raster = torch.from_numpy(self.pairs.raster[k].astype(np.float32))[None]
         target = torch.from_numpy(self.pairs.target[k]).permute(2, 0, 1).float() / 255.0
         if self.crop:
-            top, left = (int(v) for v in torch.randint(raster.shape[-1] - self.crop + 1, (2,), generator=self.generator))
+            top, left = (int(v) for v in torch.randint(raster.shape[-1] - self.crop + 1, (2,)))
             raster = raster[..., top : top + self.crop, left : left + self.crop]
             target = target[..., top : top + self.crop, left : left + self.crop]
         if self.augment:
-            code = int(torch.randint(8, (1,), generator=self.generator))
+            code = int(torch.randint(8, (1,)))
             raster, target = dihedral(raster, code), dihedral(target, code)
         return raster.contiguous(), target.contiguous()
 
@@ -80,12 +82,12 @@ class PairDataModule(L.LightningDataModule):
     """Train/validation loaders over one pair folder (loaded into memory: ~330 kB per 256 x 256 pair)."""
 
     def __init__(self, pairs_dir: str | Path, batch_size: int = 8, val_fraction: float = 0.05, augment: bool = True, crop: int | None = None,
-                 num_workers: int = 0, seed: int = 0, max_val_items: int | None = 32, baselines: bool = True,
+                 num_workers: int = 0, max_val_items: int | None = 32, baselines: bool = True,
                  baseline_cells: int = 4) -> None:
         super().__init__()
         self.pairs_dir = Path(pairs_dir)
         self.batch_size, self.val_fraction, self.augment, self.crop = batch_size, val_fraction, augment, crop
-        self.num_workers, self.seed, self.max_val_items = num_workers, seed, max_val_items
+        self.num_workers, self.max_val_items = num_workers, max_val_items
         self.baselines, self.baseline_cells = baselines, baseline_cells
         self.pairs: Pairs | None = None
         self.baseline_metrics: dict | None = None
@@ -107,7 +109,7 @@ class PairDataModule(L.LightningDataModule):
 
             raise PatternshopError(f"{self.pairs_dir}: rasters are {self.pairs.raster.shape[-1]} px but maps "
                                    f"{self.pairs.target.shape[-2]} px; make pairs with map_size = raster_size")
-        self.train_set = PairDataset(self.pairs, train, augment=self.augment, crop=self.crop, seed=self.seed)
+        self.train_set = PairDataset(self.pairs, train, augment=self.augment, crop=self.crop)
         self.val_set = PairDataset(self.pairs, val)
         if self.baselines:
             self.baseline_metrics = cached_baselines(self.pairs_dir, self.pairs, val, self.baseline_cells)

@@ -71,7 +71,7 @@ def train(cfg: DictConfig) -> dict:
     run_dir = Path(cfg.run_dir)
     data = cfg.data
     datamodule = PairDataModule(data.pairs_dir, batch_size=int(data.batch_size), val_fraction=float(data.val_fraction),
-                                augment=bool(data.augment), crop=data.crop, num_workers=int(data.num_workers), seed=int(cfg.seed),
+                                augment=bool(data.augment), crop=data.crop, num_workers=int(data.num_workers),
                                 max_val_items=data.max_val_items, baselines=bool(data.baselines),
                                 baseline_cells=int(data.baseline_cells))
     model = hydra.utils.instantiate(cfg.model, _convert_="all")
