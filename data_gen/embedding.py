@@ -120,15 +120,24 @@ def kde_locality(query: np.ndarray, exemplars: np.ndarray, window: float, low: f
     return low + (high - low) * np.clip(density(query) / reference, 0.0, 1.0)
 
 
+EXACT_HIT = 1e-9  # latent distance at which a query is an exemplar
+
+
 def idw_encode(query: np.ndarray, exemplars: np.ndarray, values: np.ndarray, power: np.ndarray) -> np.ndarray:
     """Inverse-distance weighting (paper eq. 4): (Q, 2) queries -> (Q, m) interpolated values.
 
     ``w_i = 1 / max(||z - z_i||^phi(z), 1e-10)``, weights normalised per query.
+    A query that coincides with exemplars (distance < :data:`EXACT_HIT`) takes
+    their value: the paper's clamp alone would let neighbours within
+    ``1e-10^(1/phi)`` (0.02 at phi = 6) outweigh an exemplar sitting exactly there.
     """
     out = np.empty((len(query), values.shape[1]))
     for start in range(0, len(query), 4096):
         block = slice(start, start + 4096)
         distance = np.linalg.norm(query[block, None] - exemplars[None], axis=-1)
         weights = 1.0 / np.maximum(distance ** power[block, None], 1e-10)
+        hits = distance < EXACT_HIT
+        hit_rows = hits.any(axis=1)
+        weights[hit_rows] = hits[hit_rows]
         out[block] = (weights @ values) / weights.sum(axis=1, keepdims=True)
     return out

@@ -1,24 +1,40 @@
-"""The edge-aware PCF estimator (paper §5) and the synthesis objective's gradient.
+"""The edge-aware PCF estimator (paper §5) and the synthesis objective with its gradient.
 
-At a centre point c of the pattern and radius rho_j (units of the local spacing
-s(c) = r_max at c):
+Around a point c of the pattern (a centre), with the local spacing
+s(c) = r_max at c, neighbours k within reach are tent-counted (see
+:mod:`synthesis.pcf`) at the radii rho_j, each pair weighted by the guidance
+term H(z(x_k), z(x_c)) on the latent correlation z:
 
-    g_hat(c, rho_j) = sum_k N(|x_k - x_c| / s(c); rho_j, sigma) H(z(x_k), z(x_c))  /  D(c, rho_j)
+    S(c, j) = sum_k tent_j(|x_k - x_c| / s(c)) H(z_k, z_c)
+    g_hat(c, j) = S(c, j) / D(c, j)
 
-over c's k = 50 nearest neighbours within the kernel's reach, where H is the
-guidance term on the latent correlation z and D the Poisson denominator of
-:class:`~synthesis.fields.MapFields` (which corrects borders and edges). For an
-(inhomogeneous) Poisson pattern with the map's density, E[g_hat] = 1 everywhere.
+where D is the Poisson denominator of :class:`~synthesis.fields.MapFields`
+(the same counts for a Poisson pattern of the map's intensity; it corrects
+borders and edges of density and correlation). For an (inhomogeneous) Poisson
+pattern E[g_hat] = 1 everywhere.
 
-Centres are points of the pattern, not arbitrary locations: around an arbitrary
-location the expected neighbour count is the same for every stationary
-pattern (it measures the contact distribution, not the pair correlation), so a
-PCF is only observable around points.
+**The objective aggregates** (our change to paper eq. 6, which matches each
+centre's own PCF). One point's neighbourhood holds a handful of pairs per
+radius, so its own PCF varies a lot between neighbourhoods of a true sample;
+forcing every one to the target makes patterns over-regular. Instead the
+pair-count excess ``e(c, j) = S(c, j) - g(c, j) D(c, j)`` is summed over a
+guided window of centres, ``r = A^P e`` with ``A = I + W``,
+``W[w, c] = taper(|x_c - x_w| / (R s(w))) H(z_c, z_w)`` for the window's
+neighbours (radius R = :data:`WINDOW_RADIUS` spacings; P = :data:`WINDOW_PASSES`
+passes widen it), and scored like a chi-square against the Poisson variance of
+the same window, ``V = A^P D``:
 
-The objective of paper eq. 6 is ``mean_{c, j} (g_hat(c, rho_j) - g(c, rho_j))^2``
-with the target g from the palette. Its gradient with respect to the positions
-is written out by hand (chain rule through the pair distances) so memory stays
-O(n k) and no autograd graph of size n x k x m is kept.
+    L = sum_{w, j} r(w, j)^2 / V(w, j) / (n m)
+
+A true sample of the target scores about 1 per bin whatever its natural
+variation; stacked or too-close pairs fall in the small-radius bins where the
+target expects none, and cost. The gradient is written out by hand (chain rule
+through the pair distances; window weights, fields and H are held fixed between
+neighbour refreshes), so memory stays O(pairs).
+
+Two implementations: :func:`objective_reference` (plain numpy, the reference
+the tests compare against) and the fused numba kernels of
+:mod:`synthesis.edgepcf_fast`, used by the synthesiser.
 """
 
 from __future__ import annotations
@@ -26,71 +42,256 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 from scipy.spatial import cKDTree
 
 from synthesis.fields import MapFields, guide_similarity
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
-from synthesis.pcf import KERNEL_SIGMA, NEIGHBOURS, neighbour_cutoff
+from synthesis.pcf import neighbour_cutoff, neighbours_within
+from synthesis.stratified import StratifiedSampler
 
-CHUNK = 8192  # centres per block, bounds the (chunk, k, m) temporaries
+CUMULATIVE_VARIANCE = (1.0, 0.5)  # Var / (sum a^2 K_j) of a window's cumulative count at bin j: 1 + 0.5 j (Poisson, measured)
+VARIANCE_FLOOR = 0.05  # pairs^2: one stray pair where the target expects none is 4.5 standard deviations
+
+
+@dataclass(frozen=True)
+class WindowScale:
+    """One family of aggregation windows and how its deviations are scored.
+
+    Attributes:
+        radius: window radius in units of the spacing at the window's centre.
+        points_per_window: windows per refresh = n / this (windows overlap: radius^2 > this).
+        dead_zone: standardised deviations within this many standard deviations cost nothing.
+        weight: the family's weight in the objective.
+    """
+
+    radius: float
+    points_per_window: float
+    dead_zone: float
+    weight: float
+
+
+# Local windows (~40 points) catch outliers (holes, stacks, broken hard cores) and leave a true
+# sample's natural variation alone; regional windows (~230 points) match the mean exactly.
+WINDOW_SCALES = (WindowScale(radius=3.3, points_per_window=8.0, dead_zone=2.0, weight=1.0),
+                 WindowScale(radius=8.0, points_per_window=24.0, dead_zone=0.0, weight=1.0))
+
+
+@dataclass
+class Windows:
+    """Aggregation windows of one scale (membership lists and their transpose).
+
+    Attributes:
+        scale: the :class:`WindowScale`.
+        offsets: (W + 1,) int64; members of window w are ``offsets[w]:offsets[w + 1]`` ...
+        members: (M,) int32 ... these points ...
+        weights: (M,) float64 ... with these weights (taper x guide).
+        by_member: (M,) int64 entries sorted by point (the transposed lists) ...
+        member_offsets: (n + 1,) int64 ... with these offsets per point.
+        deviation: (W, m) standard deviation of each window's cumulative count (Poisson model).
+    """
+
+    scale: WindowScale
+    offsets: np.ndarray
+    members: np.ndarray
+    weights: np.ndarray
+    by_member: np.ndarray
+    member_offsets: np.ndarray
+    deviation: np.ndarray
+
+    @property
+    def owners(self) -> np.ndarray:
+        """(M,) window of each membership entry."""
+        return _owners(self.offsets)
+
+    def aggregate(self, values: np.ndarray) -> np.ndarray:
+        """Window sums (W, m) of per-point values (n, m): ``sum_c a_wc values_c``."""
+        out = np.zeros((len(self.offsets) - 1, values.shape[1]))
+        np.add.at(out, self.owners, self.weights[:, None] * values[self.members])
+        return out
+
+    def distribute(self, values: np.ndarray, n: int) -> np.ndarray:
+        """Per-point sums (n, m) of per-window values (W, m): the adjoint of :meth:`aggregate`."""
+        out = np.zeros((n, values.shape[1]))
+        np.add.at(out, self.members, self.weights[:, None] * values[self.owners])
+        return out
 
 
 @dataclass
 class Neighbourhoods:
-    """Neighbour lists and the fields sampled at the centres, refreshed every few steps.
+    """Pair lists of every point, aggregation windows, and the fields at the points (refreshed every few steps).
 
     Attributes:
-        centres: (C,) indices of the centre points.
-        neighbours: (C, k) indices of their nearest other points.
-        spacing: (C,) local r_max at the centres.
-        target, denominator: (C, m).
-        guide: (C, k) guidance weights H between each centre and its neighbours.
+        offsets: (n + 1,) int64; pairs of centre c are ``offsets[c]:offsets[c + 1]``.
+        neighbours: (P,) int32 neighbour of each pair (within the cutoff of its centre).
+        guide: (P,) float64 guidance weights H of the pairs.
+        by_neighbour: (P,) int64 pair indices sorted by neighbour (the transposed pair lists) ...
+        neighbour_offsets: (n + 1,) int64 ... with these offsets per neighbour.
+        spacing: (n,) local r_max at the points.
+        expected: (n, m) target tent counts ``g D`` around each point.
+        windows: one :class:`Windows` per :data:`WINDOW_SCALES` entry.
+        radii: (m,) radii in units of r_max.
     """
 
-    centres: torch.Tensor
-    neighbours: torch.Tensor
-    spacing: torch.Tensor
-    target: torch.Tensor
-    denominator: torch.Tensor
-    guide: torch.Tensor
+    offsets: np.ndarray
+    neighbours: np.ndarray
+    guide: np.ndarray
+    by_neighbour: np.ndarray
+    neighbour_offsets: np.ndarray
+    spacing: np.ndarray
+    expected: np.ndarray
+    windows: list[Windows]
+    radii: np.ndarray
+
+    @property
+    def centres(self) -> np.ndarray:
+        """(P,) centre of each pair."""
+        return _owners(self.offsets)
 
 
-def find_neighbourhoods(fields: MapFields, xy: torch.Tensor, centres: torch.Tensor, k: int = NEIGHBOURS) -> Neighbourhoods:
-    """k nearest neighbours (k-d tree) of the given centre points and the fields there."""
-    points = xy.numpy()
-    k = min(k, len(points) - 1)
-    _, index = cKDTree(points).query(points[centres.numpy()], k=k + 1)
-    neighbours = torch.from_numpy(np.asarray(index, np.int64).reshape(len(centres), k + 1)[:, 1:])
-    at_centres = fields.at(xy[centres])
+def _owners(offsets: np.ndarray) -> np.ndarray:
+    return np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)).astype(np.int32)
+
+
+def window_taper(u: np.ndarray) -> np.ndarray:
+    """Smooth window weight ``(1 - u^2)^2`` for distances u < 1 in units of the window radius, else 0."""
+    q = np.clip(1.0 - np.asarray(u) ** 2, 0.0, None)
+    return q * q
+
+
+def _csr(index: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row offsets (R + 1,) and flat entries of a padded (R, K) index array where ``valid``."""
+    offsets = np.zeros(len(index) + 1, np.int64)
+    np.cumsum(valid.sum(axis=1), out=offsets[1:])
+    return offsets, index[valid].astype(np.int32)
+
+
+def _transpose(entries: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Entry order sorted by target (M,) and offsets (count + 1,) per target of a flat list of targets."""
+    order = np.argsort(entries, kind="stable")
+    offsets = np.zeros(count + 1, np.int64)
+    np.cumsum(np.bincount(entries, minlength=count), out=offsets[1:])
+    return order, offsets
+
+
+class WindowSampler:
+    """Window centres for every scale, stratified with the map's intensity (independent of any pattern)."""
+
+    def __init__(self, fields: MapFields):
+        self.n = fields.n
+        self.sampler = StratifiedSampler(fields.intensity[..., 0], fields.side_px, fields.domain, fields.n)
+
+    def draw(self, rng: np.random.Generator) -> list[np.ndarray]:
+        """One (W, 2) array of centres per :data:`WINDOW_SCALES` entry."""
+        return [self.sampler.draw(max(1, round(self.n / scale.points_per_window)), rng) for scale in WINDOW_SCALES]
+
+
+def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.ndarray, expected: np.ndarray,
+             centres: np.ndarray) -> Windows:
+    n = tree.n
+    at = fields.at(centres)
+    reach = scale.radius * at["spacing"].astype(np.float64)
+    distance, index = neighbours_within(tree, centres, reach)
+    valid = index < n
+    offsets, members = _csr(index, valid)
+    owners = _owners(offsets)
+    weights = window_taper(distance[valid] / reach[owners])
     if fields.guide:
-        latent = fields.at(xy)["latent"]
-        guide = guide_similarity(latent[neighbours], at_centres["latent"][:, None, :])
-    else:
-        guide = torch.ones(neighbours.shape)
-    return Neighbourhoods(centres, neighbours, at_centres["spacing"], at_centres["target"], at_centres["denominator"], guide)
+        weights = weights * guide_similarity(latent[members], at["latent"].astype(np.float64)[owners])
+    by_member, member_offsets = _transpose(members, n)
+    squared = np.zeros((len(centres), expected.shape[1]))
+    np.add.at(squared, owners, (weights**2)[:, None] * np.cumsum(expected, axis=1)[members])
+    factor = CUMULATIVE_VARIANCE[0] + CUMULATIVE_VARIANCE[1] * np.arange(expected.shape[1])
+    return Windows(scale, offsets, members, weights, by_member, member_offsets, np.sqrt(factor * squared + VARIANCE_FLOOR))
 
 
-BIN_WIDTH = 0.02  # fine histogram of normalised pair distances (sigma / 13)
+def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None) -> Neighbourhoods:
+    """Every pair within the estimator's reach (cutoff x spacing of the centre), windows, and the fields at the points.
+
+    ``window_centres``: one (W, 2) array per :data:`WINDOW_SCALES` entry, where the
+    windows sit; they must not depend on the pattern (default: a fixed-seed
+    :class:`WindowSampler` draw; the synthesiser draws new ones at every refresh).
+    """
+    xy = np.asarray(xy, np.float64)
+    n = len(xy)
+    if window_centres is None:
+        window_centres = WindowSampler(fields).draw(np.random.default_rng(0))
+    at = fields.at(xy)
+    spacing = at["spacing"].astype(np.float64)
+    latent = at["latent"].astype(np.float64)
+    tree = cKDTree(xy)
+    _, index = neighbours_within(tree, xy, neighbour_cutoff(fields.radii) * spacing)
+    offsets, neighbours = _csr(index, (index < n) & (index != np.arange(n)[:, None]))
+    centres = _owners(offsets)
+    guide = guide_similarity(latent[neighbours], latent[centres]) if fields.guide else np.ones(len(neighbours))
+    expected = at["target"].astype(np.float64) * at["denominator"]
+    windows = [_windows(scale, fields, tree, latent, expected, where) for scale, where in zip(WINDOW_SCALES, window_centres)]
+    by_neighbour, neighbour_offsets = _transpose(neighbours, n)
+    return Neighbourhoods(offsets, neighbours, guide, by_neighbour, neighbour_offsets, spacing, expected, windows,
+                          np.asarray(fields.radii, np.float64))
 
 
-def _kernel_tables(radii: np.ndarray, sigma: float, cutoff: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Kernel N(u; rho_j, sigma) and its u-derivative on the fine grid u_b = b * BIN_WIDTH: (B, m) each."""
-    u = np.arange(int(np.ceil(cutoff / BIN_WIDTH)) + 2) * BIN_WIDTH
-    delta = u[:, None] - radii[None, :]
-    value = np.exp(-0.5 * (delta / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi))
-    return torch.from_numpy(value.astype(np.float32)), torch.from_numpy((-delta / sigma**2 * value).astype(np.float32))
+def dead_zone(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Penalty ``max(|x| - width, 0)^2`` and its derivative, elementwise on standardised deviations x."""
+    excess = np.maximum(np.abs(x) - width, 0.0)
+    return excess**2, 2.0 * np.sign(x) * excess
 
 
-def estimate(fields: MapFields, xy: torch.Tensor, hood: Neighbourhoods, sigma: float = KERNEL_SIGMA) -> torch.Tensor:
-    """Edge-aware PCF (C, m) at the centres of ``hood`` for positions xy (n, 2)."""
-    return _objective(fields, xy, hood, sigma, gradient=False)[1]
+def pair_counts_reference(xy: np.ndarray, hood: Neighbourhoods) -> np.ndarray:
+    """Guided tent counts S (n, m) around every point (plain numpy)."""
+    n, m = len(xy), len(hood.radii)
+    centres = hood.centres
+    width = hood.radii[1] - hood.radii[0]
+    t = np.linalg.norm(xy[hood.neighbours] - xy[centres], axis=1) / (hood.spacing[centres] * width)
+    counts = np.zeros((n, m + 1))
+    keep = t < m
+    lower = np.floor(t[keep]).astype(np.int64)
+    frac = t[keep] - lower
+    np.add.at(counts, (centres[keep], lower), hood.guide[keep] * (1 - frac))
+    np.add.at(counts, (centres[keep], lower + 1), hood.guide[keep] * frac)
+    return counts[:, :m]
+
+
+def objective_reference(xy: np.ndarray, hood: Neighbourhoods, gradient: bool = True) -> tuple[float, np.ndarray | None]:
+    """Objective L (see the module docstring) and its gradient (n, 2) w.r.t. xy (n, 2); plain numpy."""
+    xy = np.asarray(xy, np.float64)
+    n, m = len(xy), len(hood.radii)
+    excess = np.cumsum(pair_counts_reference(xy, hood) - hood.expected, axis=1)
+    loss, back = 0.0, np.zeros((n, m))
+    for windows in hood.windows:
+        scale = windows.scale.weight / ((len(windows.offsets) - 1) * m)
+        standardised = windows.aggregate(excess) / windows.deviation
+        penalty, slope = dead_zone(standardised, windows.scale.dead_zone)
+        loss += float(penalty.sum()) * scale
+        back += windows.distribute(slope / windows.deviation * scale, n)  # dL/dK (cumulative counts)
+    if not gradient:
+        return loss, None
+    back = np.cumsum(back[:, ::-1], axis=1)[:, ::-1]  # dL/dS
+    back = np.concatenate([back, np.zeros((n, 1))], axis=1)
+    centres = hood.centres
+    width = hood.radii[1] - hood.radii[0]
+    offset = xy[hood.neighbours] - xy[centres]
+    distance = np.linalg.norm(offset, axis=1)
+    scale = 1.0 / (hood.spacing[centres] * width)
+    t = distance * scale
+    keep = (t < m) & (distance > 0)
+    lower = np.floor(t[keep]).astype(np.int64)
+    pull = hood.guide[keep] * (back[centres[keep], lower + 1] - back[centres[keep], lower])  # dL/dt
+    force = (pull * scale[keep] / distance[keep])[:, None] * offset[keep]  # dL/dx_neighbour
+    grad = np.zeros((n, 2))
+    np.add.at(grad, hood.neighbours[keep], force)
+    np.add.at(grad, centres[keep], -force)
+    return loss, grad
+
+
+def estimate(xy: np.ndarray, hood: Neighbourhoods, denominator: np.ndarray) -> np.ndarray:
+    """Edge-aware PCF (n, m) around every point: tent counts / the Poisson ``denominator`` (n, m)."""
+    return pair_counts_reference(np.asarray(xy, np.float64), hood) / denominator
 
 
 def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
                  palette: Palette | None = None) -> tuple[np.ndarray, MapFields]:
-    """(n,) mean-over-radii |edge-aware PCF - target| at every point (n, 2) of a pattern on ``lab_map``, and the fields.
+    """(W,) mean-over-radii |window PCF - window target| per aggregation window of a pattern (n, 2), and the fields.
 
     The map's target PCFs come from ``palette`` (default: the shipped one); ``n``
     sets the map's point spacing (default: the pattern's own count).
@@ -98,55 +299,10 @@ def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
     from synthesis.palette import load_palette
 
     fields = MapFields.build(lab_map, len(points) if n is None else n, palette or load_palette())
-    xy = torch.from_numpy(np.asarray(points, np.float32))
-    hood = find_neighbourhoods(fields, xy, torch.arange(len(xy)))
-    return (estimate(fields, xy, hood) - hood.target).abs().mean(dim=1).numpy(), fields
-
-
-def loss_and_gradient(
-    fields: MapFields, xy: torch.Tensor, hood: Neighbourhoods, sigma: float = KERNEL_SIGMA
-) -> tuple[float, torch.Tensor]:
-    """Objective ``mean (g_hat - g)^2`` over centres and radii, and its gradient (n, 2)."""
-    loss, _, gradient = _objective(fields, xy, hood, sigma, gradient=True)
-    return loss, gradient
-
-
-def _objective(fields: MapFields, xy: torch.Tensor, hood: Neighbourhoods, sigma: float, gradient: bool):
-    """Estimates, objective and gradient in one pass.
-
-    Pair distances are spread linearly onto a fine histogram per centre
-    (:data:`BIN_WIDTH`), and the histogram times the kernel table gives the
-    kernel sums for all m radii: O(1) work per pair instead of O(m). The
-    gradient reads the kernel derivative back from the same grid.
-    """
-    cutoff = neighbour_cutoff(fields.radii, sigma)
-    table, slope_table = _kernel_tables(fields.radii, sigma, cutoff)
-    bins, m = table.shape
-    count = len(hood.centres)
-    grad = torch.zeros_like(xy) if gradient else None
-    estimates = torch.empty(count, m)
-    total = 0.0
-    for start in range(0, count, CHUNK):
-        block = slice(start, start + CHUNK)
-        centres, neighbours = hood.centres[block], hood.neighbours[block]
-        offset = xy[neighbours] - xy[centres][:, None, :]  # (c, k, 2)
-        distance = offset.norm(dim=-1).clamp_min(1e-12)
-        position = distance / (hood.spacing[block, None] * BIN_WIDTH)
-        weight = hood.guide[block] * (position <= cutoff / BIN_WIDTH)
-        lower = position.floor().clamp(max=bins - 2)
-        frac = (position - lower).clamp(max=1.0)
-        lower = lower.long()
-        histogram = torch.zeros(len(centres), bins)
-        histogram.scatter_add_(1, lower, weight * (1 - frac)).scatter_add_(1, lower + 1, weight * frac)
-        estimate_block = (histogram @ table) / hood.denominator[block]
-        estimates[block] = estimate_block
-        residual = estimate_block - hood.target[block]
-        total += float((residual**2).sum())
-        if gradient:
-            d_estimate = 2.0 * residual / (hood.denominator[block] * count * m)  # (c, m)
-            d_grid = d_estimate @ slope_table.T  # dL/du on the fine grid, (c, B)
-            d_u = (d_grid.gather(1, lower) * (1 - frac) + d_grid.gather(1, lower + 1) * frac) * weight
-            pull = (d_u / (distance * hood.spacing[block, None]))[..., None] * offset  # dL/dx_k
-            grad.index_add_(0, neighbours.reshape(-1), pull.reshape(-1, 2))
-            grad.index_add_(0, centres, -pull.sum(1))
-    return total / (count * m), estimates, grad
+    points = np.asarray(points, np.float64)
+    hood = find_neighbourhoods(fields, points)
+    windows = hood.windows[0]
+    poisson = windows.aggregate(fields.at(points)["denominator"])
+    observed = windows.aggregate(pair_counts_reference(points, hood)) / poisson
+    target = windows.aggregate(hood.expected) / poisson
+    return np.abs(observed - target).mean(axis=1), fields

@@ -4,51 +4,61 @@ A :class:`MapFields` holds, on the map's pixel grid: the intensity (points per
 unit area) implied by the density and the point count, the local spacing
 ``r_max(x)`` in which distances are measured, the latent correlation z (the
 guide), the target PCF from the palette, and the estimator's denominator (the
-kernel sum a Poisson pattern of that intensity would give, computed once per
-map by quadrature; it corrects the domain border and sharp edges).
+tent counts a Poisson pattern of that intensity gives around a point at x,
+computed once per map; it corrects the domain border and sharp edges of
+density and correlation).
 
-Grids are (H, W, C) float32; pixel (i, j) is centred at ((j + .5) / S, (i + .5) / S)
-with S = max(H, W), so the map covers ``[0, w] x [0, h]`` with max(w, h) = 1.
+Grids are (H, W, C) float32 numpy arrays; pixel (i, j) is centred at
+((j + .5) / S, (i + .5) / S) with S = max(H, W), so the map covers
+``[0, w] x [0, h]`` with max(w, h) = 1.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
-import torch
-import torch.nn.functional as F
+from scipy import ndimage
 
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
-from synthesis.pcf import KERNEL_SIGMA, neighbour_cutoff, pcf_radii, r_max, radial_kernel, uniform_expectation
+from synthesis.pcf import neighbour_cutoff, pcf_radii, r_max, uniform_expectation
 
 GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dimension
 DENSITY_FLOOR = 1e-3  # relative to the mean density: keeps spacings finite in white areas
-QUADRATURE_RADII = 14  # nodes over [0, cutoff]: steps of 0.77 sigma
-QUADRATURE_ANGLES = 20
 FIELD_MAX_SIDE = 256  # fields are computed on the map resampled to at most this many pixels per side
+RING_SPACING = 0.4  # quadrature: arc length between nodes on a ring, in units of the local spacing
+UNIFORM_TOLERANCE = 1e-4  # relative intensity / latent change below which a neighbourhood counts as uniform
+POISSON_PAIR_SCALE = 2.0 / math.sqrt(3.0)  # intensity * r_max^2, the same at every density
 
 
-def sample_grid(grid: torch.Tensor, xy: torch.Tensor, side_px: int) -> torch.Tensor:
+def sample_grid(grid: np.ndarray, xy: np.ndarray, side_px: int) -> np.ndarray:
     """Bilinear samples (n, C) of a (H, W, C) grid at positions xy (n, 2) in map units.
 
     Positions outside the grid take the nearest edge value.
     """
-    height, width, channels = grid.shape
-    col = (xy[:, 0] * side_px - 0.5).clamp(0, width - 1)
-    row = (xy[:, 1] * side_px - 0.5).clamp(0, height - 1)
-    c0 = col.floor().long().clamp(max=max(width - 2, 0))
-    r0 = row.floor().long().clamp(max=max(height - 2, 0))
-    c1 = (c0 + 1).clamp(max=width - 1)
-    r1 = (r0 + 1).clamp(max=height - 1)
-    tc = (col - c0).unsqueeze(1)
-    tr = (row - r0).unsqueeze(1)
+    height, width, _ = grid.shape
+    col = np.clip(xy[:, 0] * side_px - 0.5, 0, width - 1)
+    row = np.clip(xy[:, 1] * side_px - 0.5, 0, height - 1)
+    c0 = np.minimum(col.astype(np.int64), max(width - 2, 0))
+    r0 = np.minimum(row.astype(np.int64), max(height - 2, 0))
+    c1, r1 = np.minimum(c0 + 1, width - 1), np.minimum(r0 + 1, height - 1)
+    tc, tr = (col - c0)[:, None], (row - r0)[:, None]
     top = grid[r0, c0] * (1 - tc) + grid[r0, c1] * tc
     bottom = grid[r1, c0] * (1 - tc) + grid[r1, c1] * tc
-    return top * (1 - tr) + bottom * tr
+    return (top * (1 - tr) + bottom * tr).astype(grid.dtype)
+
+
+def _area_matrix(old: int, new: int) -> np.ndarray:
+    """(new, old) weights averaging ``old`` cells into ``new`` equal cells (exact fractional overlaps)."""
+    edges = np.arange(new + 1) * (old / new)
+    lo, hi = edges[:-1, None], edges[1:, None]
+    cells = np.arange(old)[None, :]
+    overlap = np.clip(np.minimum(hi, cells + 1) - np.maximum(lo, cells), 0.0, None)
+    return overlap / overlap.sum(axis=1, keepdims=True)
 
 
 def _at_most(lab_map: LabMap, side: int) -> LabMap:
@@ -56,14 +66,15 @@ def _at_most(lab_map: LabMap, side: int) -> LabMap:
     longest = max(lab_map.width, lab_map.height)
     if longest <= side:
         return lab_map
-    size = (max(1, round(lab_map.height * side / longest)), max(1, round(lab_map.width * side / longest)))
-    lab = torch.from_numpy(np.array(lab_map.lab)).permute(2, 0, 1)[None]
-    return LabMap(F.interpolate(lab, size=size, mode="area")[0].permute(1, 2, 0).numpy())
+    rows = _area_matrix(lab_map.height, max(1, round(lab_map.height * side / longest)))
+    cols = _area_matrix(lab_map.width, max(1, round(lab_map.width * side / longest)))
+    lab = np.einsum("ih,hwc,jw->ijc", rows, np.asarray(lab_map.lab, np.float64), cols)
+    return LabMap(lab.astype(np.float32))
 
 
-def guide_similarity(z_a: torch.Tensor, z_b: torch.Tensor, bandwidth: float = GUIDE_BANDWIDTH) -> torch.Tensor:
+def guide_similarity(z_a: np.ndarray, z_b: np.ndarray, bandwidth: float = GUIDE_BANDWIDTH) -> np.ndarray:
     """Guidance term H = exp(-|z_a - z_b|^2 / (2 bandwidth)) over the last axis (latent z)."""
-    return torch.exp(-((z_a - z_b) ** 2).sum(-1) / (2.0 * bandwidth))
+    return np.exp(-((z_a - z_b) ** 2).sum(-1) / (2.0 * bandwidth))
 
 
 @dataclass
@@ -78,101 +89,143 @@ class MapFields:
         spacing: (H, W, 1) local r_max.
         latent: (H, W, 2) guide z in [0, 1].
         target: (H, W, m) target PCF.
-        denominator: (H, W, m) expected kernel sums of a Poisson pattern.
+        uniform: (H, W) bool, the pixel's neighbourhood is uniform (see :meth:`_uniform_pixels`).
         radii: (m,) radii in units of r_max.
+        guide: whether the guidance term is used.
     """
 
     domain: tuple[float, float]
     side_px: int
     n: int
-    intensity: torch.Tensor
-    spacing: torch.Tensor
-    latent: torch.Tensor
-    target: torch.Tensor
-    denominator: torch.Tensor
+    intensity: np.ndarray
+    spacing: np.ndarray
+    latent: np.ndarray
+    target: np.ndarray
+    uniform: np.ndarray
     radii: np.ndarray
     guide: bool = True
 
     @classmethod
-    def build(cls, lab_map: LabMap, n: int, palette: Palette, guide: bool = True, sigma: float = KERNEL_SIGMA) -> MapFields:
+    def build(cls, lab_map: LabMap, n: int, palette: Palette, guide: bool = True) -> MapFields:
         """Precompute every field of ``lab_map`` for ``n`` points (``guide=False``: no guidance term).
 
         Maps larger than :data:`FIELD_MAX_SIDE` pixels per side are area-averaged
         down first; the fields are smooth on that scale and the denominator's
         cost grows with the pixel count.
         """
+        if n < 1:
+            raise PatternshopError(f"point count must be at least 1, got {n}")
         w, h = lab_map.domain  # of the original map: resampling rounds the pixel counts
         lab_map = _at_most(lab_map, FIELD_MAX_SIDE)
         density = lab_map.density().astype(np.float64)
         if not np.any(density > 0):
             raise PatternshopError("the map is white everywhere: there is nothing to place points on")
-        if n < 1:
-            raise PatternshopError(f"point count must be at least 1, got {n}")
         density = np.maximum(density, DENSITY_FLOOR * density.mean())
         intensity = n * density / (density.mean() * w * h)
-        spacing = r_max(intensity)  # points per unit area -> local r_max
-        radii = pcf_radii()
+        radii = np.asarray(palette.radii, np.float64)
         latent = lab_map.latent().astype(np.float32)
-        target = palette.pcf_at_latent(latent)
         fields = cls(
             domain=(w, h), side_px=max(lab_map.width, lab_map.height), n=n,
-            intensity=torch.from_numpy(intensity[..., None].astype(np.float32)),
-            spacing=torch.from_numpy(spacing[..., None].astype(np.float32)),
-            latent=torch.from_numpy(latent), target=torch.from_numpy(target.astype(np.float32)),
-            denominator=torch.empty(0), radii=radii, guide=guide,
+            intensity=intensity[..., None].astype(np.float32),
+            spacing=r_max(intensity)[..., None].astype(np.float32),
+            latent=latent, target=palette.pcf_at_latent(latent).astype(np.float32),
+            uniform=np.empty(0, bool), radii=radii, guide=guide,
         )
-        fields.denominator = fields._poisson_denominator(sigma)
+        fields.uniform = fields._uniform_pixels()
         return fields
 
-    def _poisson_denominator(self, sigma: float) -> torch.Tensor:
-        """(H, W, m) ``int lambda(y) N(|y - x| / s(x); rho, sigma) H(y, x) dy`` over the domain.
+    def _uniform_pixels(self) -> np.ndarray:
+        """(H, W) bool: the pixel's whole neighbourhood (cutoff x spacing) has one intensity and latent, no border.
 
-        Polar quadrature around every pixel centre x in units of s(x), with
-        lambda = 0 outside the domain. The result is the ratio to
-        the same quadrature of an unbounded uniform field times the exact
-        unbounded value ``lambda(x) s(x)^2 E(rho)``, so quadrature error cancels
-        wherever the neighbourhood is uniform and only edges and borders move it.
+        Square windows of power-of-two half-sizes, each pixel tested at the
+        smallest one that covers its reach (conservative).
         """
         height, width, _ = self.intensity.shape
-        radii = self.radii
-        cutoff = neighbour_cutoff(radii, sigma)
-        step = cutoff / QUADRATURE_RADII
-        u = (np.arange(QUADRATURE_RADII) + 0.5) * step
-        theta = (np.arange(QUADRATURE_ANGLES) + 0.5) * (2 * math.pi / QUADRATURE_ANGLES)
-        uu, tt = (a.reshape(-1) for a in np.meshgrid(u, theta, indexing="ij"))
-        kernel = radial_kernel(uu, radii, sigma) * (uu * step * 2 * math.pi / QUADRATURE_ANGLES)[:, None]  # (Q, m)
-        kernel_t = torch.from_numpy(kernel.astype(np.float32))
-        free = kernel_t.sum(0)  # quadrature of the unbounded uniform case
-        exact = torch.from_numpy(uniform_expectation(radii, sigma, cutoff).astype(np.float32))
-        # offsets in grid_sample's normalised coordinates per unit of spacing
-        to_grid = torch.tensor([2.0 * self.side_px / width, 2.0 * self.side_px / height])
-        offsets = torch.from_numpy(np.stack([uu * np.cos(tt), uu * np.sin(tt)], -1).astype(np.float32)) * to_grid
-        rows, cols = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
-        base = torch.stack([(cols.reshape(-1) + 0.5) / width * 2 - 1, (rows.reshape(-1) + 0.5) / height * 2 - 1], -1)
-        fields = torch.cat([self.intensity, self.latent], -1).permute(2, 0, 1)[None]  # (1, 3, H, W)
-        flat_spacing = self.spacing.reshape(-1, 1, 1)
-        flat_intensity = self.intensity.reshape(-1, 1)
-        flat_latent = self.latent.reshape(-1, 1, 2)
-        out = torch.empty(height * width, len(radii))
-        chunk = max(1, 4_000_000 // len(offsets))
-        for start in range(0, len(base), chunk):
+        reach = np.ceil(neighbour_cutoff(self.radii) * self.spacing[..., 0] * self.side_px + 1.0)
+        channels = [np.log(self.intensity[..., 0]), self.latent[..., 0], self.latent[..., 1]]
+        rows, cols = np.indices((height, width))
+        to_border = np.minimum(np.minimum(rows, height - 1 - rows), np.minimum(cols, width - 1 - cols))
+        uniform = np.zeros((height, width), bool)
+        half = 1
+        while True:
+            need = (reach <= half) & (reach > half // 2 if half > 1 else True)
+            if need.any():
+                flat = np.ones((height, width), bool)
+                for channel in channels:
+                    size = 2 * half + 1
+                    spread = ndimage.maximum_filter(channel, size, mode="nearest") - ndimage.minimum_filter(channel, size, mode="nearest")
+                    flat &= spread <= UNIFORM_TOLERANCE
+                uniform |= need & flat & (to_border >= half)
+            if half >= max(height, width) or half >= reach.max():
+                return uniform
+            half *= 2
+
+    def denominator_at(self, xy: np.ndarray) -> np.ndarray:
+        """(n, m) ``int lambda(y) K_j(|y - x| / s(x)) H(z(y), z(x)) dy / lambda(x)`` times lambda(x), at points xy (n, 2).
+
+        The tent counts a Poisson pattern of the map's intensity gives around a
+        point at x. Points whose pixel has a uniform neighbourhood get the exact
+        unbounded value ``lambda s^2 E_j`` (= 2/sqrt(3) E_j). Elsewhere polar
+        quadrature around the point itself in units of s(x) (rings at the bin
+        midpoints, nodes :data:`RING_SPACING` apart along each ring; lambda = 0
+        outside the domain; z and lambda bilinear, exactly as the estimator
+        samples them at the points), divided by the same quadrature of the
+        unbounded uniform case and times the exact value, so quadrature error
+        cancels and only edges, borders and gradients move it.
+        """
+        xy = np.asarray(xy, np.float64)
+        m = len(self.radii)
+        exact = POISSON_PAIR_SCALE * uniform_expectation(self.radii)
+        out = np.broadcast_to(exact, (len(xy), m)).copy()
+        height, width, _ = self.intensity.shape
+        col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
+        row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
+        todo = np.flatnonzero(~self.uniform[row, col])
+        if not len(todo):
+            return out
+        u, dx, dy, tent = self._quadrature
+        free = tent.sum(0)
+        spacing = sample_grid(self.spacing, xy[todo], self.side_px)[:, 0] * self.side_px  # in pixels
+        latent = sample_grid(self.latent, xy[todo], self.side_px)
+        own = sample_grid(self.intensity, xy[todo], self.side_px)[:, 0]
+        px0, py0 = xy[todo, 0] * self.side_px - 0.5, xy[todo, 1] * self.side_px - 0.5  # pixel-index coordinates
+        chunk = max(1, 1_000_000 // len(u))
+        for start in range(0, len(todo), chunk):
             block = slice(start, start + chunk)
-            grid = base[block, None, :] + flat_spacing[block] * offsets[None]  # (P, Q, 2)
-            sampled = F.grid_sample(fields, grid[None], mode="bilinear", padding_mode="border", align_corners=False)[0]
-            inside = (grid.abs() <= 1.0).all(dim=-1)
-            weight = sampled[0] * inside  # lambda(y), 0 outside the domain
+            px = px0[block, None] + spacing[block, None] * dx[None]
+            py = py0[block, None] + spacing[block, None] * dy[None]
+            inside = (px >= -0.5) & (px <= width - 0.5) & (py >= -0.5) & (py <= height - 0.5)
+            coords = np.stack([py.reshape(-1), px.reshape(-1)])
+            lam = ndimage.map_coordinates(self.intensity[..., 0], coords, order=1, mode="nearest").reshape(py.shape)
+            weight = lam * inside / own[block, None]
             if self.guide:
-                weight = weight * guide_similarity(sampled[1:].permute(1, 2, 0), flat_latent[block])
-            out[block] = (weight @ kernel_t) / (free * flat_intensity[block])
-        scale = self.intensity * self.spacing**2 * exact
-        return out.reshape(height, width, -1) * scale
+                za = ndimage.map_coordinates(self.latent[..., 0], coords, order=1, mode="nearest").reshape(py.shape)
+                zb = ndimage.map_coordinates(self.latent[..., 1], coords, order=1, mode="nearest").reshape(py.shape)
+                centre = latent[block]
+                weight = weight * np.exp(-((za - centre[:, :1]) ** 2 + (zb - centre[:, 1:]) ** 2) / (2 * GUIDE_BANDWIDTH))
+            out[todo[block]] = (weight @ tent) / free * exact
+        return out
+
+    @functools.cached_property
+    def _quadrature(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Polar nodes in units of the spacing: radii u (Q,), offsets dx, dy (Q,), tent weights x area (Q, m)."""
+        width_bin = float(self.radii[1] - self.radii[0])
+        nodes = []
+        for u in (np.arange(len(self.radii)) + 0.5) * width_bin:
+            count = max(8, math.ceil(2 * math.pi * u / RING_SPACING))
+            theta = (np.arange(count) + 0.5) * (2 * math.pi / count)
+            nodes.append(np.stack([np.full(count, u), u * np.cos(theta), u * np.sin(theta),
+                                   np.full(count, u * width_bin * 2 * math.pi / count)]))
+        u, dx, dy, area = np.concatenate(nodes, axis=1)
+        tent = np.clip(1 - np.abs(u[:, None] - self.radii[None, :]) / width_bin, 0, None) * area[:, None]
+        return u, dx, dy, tent
 
     # --- sampling at points -------------------------------------------------
-    def at(self, xy: torch.Tensor) -> dict[str, torch.Tensor]:
+    def at(self, xy: np.ndarray) -> dict[str, np.ndarray]:
         """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target and denominator (n, m)."""
         return {
             "spacing": sample_grid(self.spacing, xy, self.side_px)[:, 0],
             "latent": sample_grid(self.latent, xy, self.side_px),
             "target": sample_grid(self.target, xy, self.side_px),
-            "denominator": sample_grid(self.denominator, xy, self.side_px),
+            "denominator": self.denominator_at(xy),
         }

@@ -1,0 +1,136 @@
+"""The palette's PCF table in the estimator's terms, with every preset realised exactly.
+
+``python -m data_gen.palette_table [--palette IN] [--output OUT]`` rebuilds the
+PCF side of a palette asset without touching its layout (the exemplars' latent
+coordinates and perceptual codes): it re-measures every exemplar's PCF with the
+current estimator (:func:`synthesis.pcf.stationary_pcf`), makes each named
+preset an exemplar of its own generator (points, perceptual code and the
+generator's PCF averaged over several realisations, placed on the 8-bit
+colour grid node nearest to the preset's old colour, so that painting the
+preset's 8-bit colour asks for exactly that generator's PCF), and recomputes
+the 256 x 256 IDW look-up table. The full build (:mod:`data_gen.palette`) uses
+the same functions. A provenance record goes into the asset's ``.json``
+(section ``table``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from synthesis.palette import DEFAULT_PALETTE, LUT_SIZE, Palette, ab_to_latent, hue_chroma, latent_to_ab
+from synthesis.pcf import pcf_radii, stationary_pcf
+
+PRESET_POINTS = 4096  # generator realisations measured per preset ...
+PRESET_REALISATIONS = 6  # ... and how many, averaged
+PRESET_SEED = 1234
+KDE_WINDOW = 0.01  # IDW locality (SPEC §2.1)
+LOCALITY = (3.0, 6.0)
+
+
+def exemplar_pcfs(points: np.ndarray) -> np.ndarray:
+    """(N, m) PCFs of N toroidal exemplar point sets (N, P, 2) in [0, 1)^2."""
+    return np.stack([stationary_pcf(p, periodic=True) for p in points]).astype(np.float32)
+
+
+def generator_pcf(name: str, n: int = PRESET_POINTS, realisations: int = PRESET_REALISATIONS,
+                  seed: int = PRESET_SEED) -> np.ndarray:
+    """(m,) mean PCF of ``realisations`` toroidal patterns of generator ``name`` with n points."""
+    from synthesis.generators import generate
+
+    return np.mean([stationary_pcf(generate(name, n, seed + i), periodic=True) for i in range(realisations)], axis=0)
+
+
+def snap_to_grid(z: np.ndarray) -> np.ndarray:
+    """Latent z (..., 2) moved to the nearest 8-bit colour node (integer a, b)."""
+    return ab_to_latent(np.rint(latent_to_ab(z)))
+
+
+def look_up_table(z: np.ndarray, pcf: np.ndarray) -> np.ndarray:
+    """(256, 256, m) IDW table (paper eq. 4) of exemplar PCFs (N, m) at latents z (N, 2)."""
+    from data_gen.embedding import idw_encode, kde_locality
+
+    grid = np.stack(np.meshgrid(np.arange(LUT_SIZE), np.arange(LUT_SIZE), indexing="ij"), axis=-1).reshape(-1, 2) / (LUT_SIZE - 1)
+    power = kde_locality(grid, z, KDE_WINDOW, *LOCALITY)
+    return idw_encode(grid, z, pcf, power).reshape(LUT_SIZE, LUT_SIZE, -1).astype(np.float32)
+
+
+def with_preset_exemplars(palette: Palette, exemplar_points_count: int, log=print) -> tuple[Palette, dict]:  # noqa: ANN001
+    """The palette with each preset's exemplar replaced by its generator and the PCF table rebuilt.
+
+    Returns the new palette and a record of what moved (per preset: old and new
+    colour, the generator PCF's first radii).
+    """
+    z = palette.exemplar_z.copy()
+    points = palette.exemplar_points.copy()
+    codes = palette.codes.copy()
+    start = time.perf_counter()
+    pcf = exemplar_pcfs(points)
+    log(f"[table] {len(points)} exemplar PCFs re-measured: {time.perf_counter() - start:.1f} s")
+    presets, record = {}, {}
+    for name, preset in palette.presets.items():
+        from synthesis.generators import generate
+
+        index = int(preset["exemplar"])
+        z[index] = snap_to_grid(z[index])
+        points[index] = generate(name, exemplar_points_count, PRESET_SEED)
+        pcf[index] = generator_pcf(name)
+        codes[index] = palette.reduce(palette._extractor(points[index], (1.0, 1.0), True))
+        a, b = (float(v) for v in latent_to_ab(z[index]))
+        hue, chroma = hue_chroma(a, b)
+        presets[name] = {**preset, "a": round(a, 2), "b": round(b, 2), "hue": round(hue, 1), "chroma": round(chroma, 1)}
+        record[name] = {"old_ab": [preset["a"], preset["b"]], "ab": [round(a), round(b)],
+                        "pcf_first_radii": [round(float(v), 3) for v in pcf[index][:10]]}
+        log(f"[table] preset {name}: exemplar {index} -> generator at ({a:.0f}, {b:.0f})")
+    start = time.perf_counter()
+    lut = look_up_table(z, pcf)
+    log(f"[table] look-up table: {time.perf_counter() - start:.1f} s")
+    new = Palette(radii=pcf_radii(), lut=lut, exemplar_z=z, exemplar_pcf=pcf, exemplar_points=points,
+                  exemplar_spectrum=palette.exemplar_spectrum, codes=codes, feature_mean=palette.feature_mean,
+                  components=palette.components, block_scale=palette.block_scale, presets=presets,
+                  extractor=palette.extractor)
+    return new, record
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Rebuild the PCF table of a palette asset (default: the shipped one, in place)."""
+    parser = argparse.ArgumentParser(prog="python -m data_gen.palette_table", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--palette", default=str(DEFAULT_PALETTE), help="palette asset to read (default: the shipped one)")
+    parser.add_argument("--output", help="asset to write (default: the input, replaced atomically)")
+    args = parser.parse_args(argv)
+    from data_gen.provenance import git_commit, utc_now
+    from synthesis.atomic import atomic_write_text
+    from synthesis.errors import PatternshopError
+
+    try:
+        palette = Palette.load(args.palette)
+    except PatternshopError as exc:
+        print(f"palette_table: error: {exc}", file=sys.stderr)
+        return 2
+    start = time.perf_counter()
+    new, record = with_preset_exemplars(palette, palette.exemplar_points.shape[1], lambda s: print(s, file=sys.stderr))
+    output = Path(args.output or args.palette)
+    new.save(output)
+    provenance_path = output.with_suffix(".json")
+    provenance = json.loads(provenance_path.read_text()) if provenance_path.is_file() else {}
+    provenance["presets"] = new.presets
+    provenance["table"] = {
+        "command": "python -m data_gen.palette_table " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "radii": [round(float(r), 3) for r in new.radii], "estimator": "tent bins (synthesis.pcf), periodic",
+        "preset_points": PRESET_POINTS, "preset_realisations": PRESET_REALISATIONS, "preset_seed": PRESET_SEED,
+        "presets": record, "seconds": round(time.perf_counter() - start, 1), "commit": git_commit(), "built": utc_now(),
+    }
+    provenance["asset_bytes"] = output.stat().st_size
+    atomic_write_text(provenance_path, json.dumps(provenance, indent=2) + "\n")
+    print(f"[table] wrote {output} ({output.stat().st_size / 1e6:.1f} MB) and {provenance_path}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
