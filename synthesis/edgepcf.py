@@ -50,7 +50,9 @@ from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff, neighbours_within
 from synthesis.stratified import StratifiedSampler
 
-CUMULATIVE_VARIANCE = (1.0, 0.5)  # Var / (sum a^2 K_j) of a window's cumulative count at bin j: 1 + 0.5 j (Poisson, measured)
+CUMULATIVE_VARIANCE = (1.0, 5.0)  # Var / (sum a^2 K) of a window's cumulative count at radius rho: 1 + 5 rho (Poisson, measured)
+BIN_VARIANCE = 1.3  # Var / (sum a^2 S) of a window's count per radius (Poisson, measured: each pair in two counts, tent^2)
+REGULAR_RANGE = 0.55  # radii (units of r_max) over which the target's short-range PCF measures its regularity
 VARIANCE_FLOOR = 0.05  # pairs^2: one stray pair where the target expects none is 4.5 standard deviations
 
 
@@ -63,18 +65,21 @@ class WindowScale:
         points_per_window: windows per refresh = n / this (windows overlap: radius^2 > this).
         dead_zone: standardised deviations within this many standard deviations cost nothing.
         weight: the family's weight in the objective.
+        cumulative: score cumulative counts (pairs closer than each radius: every step
+            out of a hard core pays) instead of the counts per radius (the PCF's shape).
     """
 
     radius: float
     points_per_window: float
     dead_zone: float
     weight: float
+    cumulative: bool
 
 
 # Local windows (~40 points) catch outliers (holes, stacks, broken hard cores) and leave a true
-# sample's natural variation alone; regional windows (~230 points) match the mean exactly.
-WINDOW_SCALES = (WindowScale(radius=3.3, points_per_window=8.0, dead_zone=2.0, weight=1.0),
-                 WindowScale(radius=8.0, points_per_window=24.0, dead_zone=0.0, weight=1.0))
+# sample's natural variation alone; regional windows (~230 points) match the PCF's mean shape.
+WINDOW_SCALES = (WindowScale(radius=3.3, points_per_window=8.0, dead_zone=2.0, weight=1.0, cumulative=True),
+                 WindowScale(radius=8.0, points_per_window=48.0, dead_zone=0.0, weight=1.0, cumulative=True))
 
 
 @dataclass
@@ -131,6 +136,7 @@ class Neighbourhoods:
         expected: (n, m) target tent counts ``g D`` around each point.
         windows: one :class:`Windows` per :data:`WINDOW_SCALES` entry.
         radii: (m,) radii in units of r_max.
+        regularity: (n,) in [0, 1], how far the target PCF at each point stays below 1 at short range.
     """
 
     offsets: np.ndarray
@@ -142,6 +148,7 @@ class Neighbourhoods:
     expected: np.ndarray
     windows: list[Windows]
     radii: np.ndarray
+    regularity: np.ndarray
 
     @property
     def centres(self) -> np.ndarray:
@@ -157,6 +164,13 @@ def window_taper(u: np.ndarray) -> np.ndarray:
     """Smooth window weight ``(1 - u^2)^2`` for distances u < 1 in units of the window radius, else 0."""
     q = np.clip(1.0 - np.asarray(u) ** 2, 0.0, None)
     return q * q
+
+
+def window_squares(values: np.ndarray, windows: Windows) -> np.ndarray:
+    """(W, m) ``sum_c a_wc^2 values_c`` for per-point values (n, m)."""
+    from synthesis.edgepcf_fast import window_sums
+
+    return window_sums(values, windows.offsets, windows.members, windows.weights**2)
 
 
 def _csr(index: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -199,10 +213,15 @@ def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.nd
     if fields.guide:
         weights = weights * guide_similarity(latent[members], at["latent"].astype(np.float64)[owners])
     by_member, member_offsets = _transpose(members, n)
-    squared = np.zeros((len(centres), expected.shape[1]))
-    np.add.at(squared, owners, (weights**2)[:, None] * np.cumsum(expected, axis=1)[members])
-    factor = CUMULATIVE_VARIANCE[0] + CUMULATIVE_VARIANCE[1] * np.arange(expected.shape[1])
-    return Windows(scale, offsets, members, weights, by_member, member_offsets, np.sqrt(factor * squared + VARIANCE_FLOOR))
+    windows = Windows(scale, offsets, members, weights, by_member, member_offsets, np.empty(0))
+    if scale.cumulative:
+        squared = window_squares(np.cumsum(expected, axis=1), windows)
+        factor = CUMULATIVE_VARIANCE[0] + (CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0) * (fields.radii + (fields.radii[1] - fields.radii[0]))
+    else:
+        squared = window_squares(expected, windows)
+        factor = BIN_VARIANCE
+    windows.deviation = np.sqrt(factor * squared + VARIANCE_FLOOR)
+    return windows
 
 
 def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None) -> Neighbourhoods:
@@ -228,7 +247,13 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     windows = [_windows(scale, fields, tree, latent, expected, where) for scale, where in zip(WINDOW_SCALES, window_centres)]
     by_neighbour, neighbour_offsets = _transpose(neighbours, n)
     return Neighbourhoods(offsets, neighbours, guide, by_neighbour, neighbour_offsets, spacing, expected, windows,
-                          np.asarray(fields.radii, np.float64))
+                          np.asarray(fields.radii, np.float64), regularity(at["target"], fields.radii))
+
+
+def regularity(target: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(...) in [0, 1]: how far the target PCF (..., m) stays below 1 at short range (1 = hard core, 0 = Poisson or clustered)."""
+    short = radii <= REGULAR_RANGE
+    return np.clip(1.0 - target[..., short].mean(axis=-1), 0.0, 1.0)
 
 
 def dead_zone(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
@@ -256,17 +281,22 @@ def objective_reference(xy: np.ndarray, hood: Neighbourhoods, gradient: bool = T
     """Objective L (see the module docstring) and its gradient (n, 2) w.r.t. xy (n, 2); plain numpy."""
     xy = np.asarray(xy, np.float64)
     n, m = len(xy), len(hood.radii)
-    excess = np.cumsum(pair_counts_reference(xy, hood) - hood.expected, axis=1)
-    loss, back = 0.0, np.zeros((n, m))
+    excess = pair_counts_reference(xy, hood) - hood.expected
+    cumulative = np.cumsum(excess, axis=1)
+    loss, back, back_cumulative = 0.0, np.zeros((n, m)), np.zeros((n, m))
     for windows in hood.windows:
         scale = windows.scale.weight / ((len(windows.offsets) - 1) * m)
-        standardised = windows.aggregate(excess) / windows.deviation
+        standardised = windows.aggregate(cumulative if windows.scale.cumulative else excess) / windows.deviation
         penalty, slope = dead_zone(standardised, windows.scale.dead_zone)
         loss += float(penalty.sum()) * scale
-        back += windows.distribute(slope / windows.deviation * scale, n)  # dL/dK (cumulative counts)
+        part = windows.distribute(slope / windows.deviation * scale, n)
+        if windows.scale.cumulative:
+            back_cumulative += part  # dL/dK (cumulative counts)
+        else:
+            back += part
     if not gradient:
         return loss, None
-    back = np.cumsum(back[:, ::-1], axis=1)[:, ::-1]  # dL/dS
+    back += np.cumsum(back_cumulative[:, ::-1], axis=1)[:, ::-1]  # dL/dS
     back = np.concatenate([back, np.zeros((n, 1))], axis=1)
     centres = hood.centres
     width = hood.radii[1] - hood.radii[0]

@@ -20,7 +20,7 @@ _JIT = {"parallel": True, "cache": True, "fastmath": False}
 
 
 @numba.njit(**_JIT)
-def _pair_counts(xy, offsets, neighbours, guide, spacing, inv_width, expected, excess):  # pragma: no cover - jitted
+def _pair_counts(xy, offsets, neighbours, guide, spacing, inv_width, expected, excess, cumulative):  # pragma: no cover
     n, m = excess.shape
     for c in numba.prange(n):
         row = excess[c]
@@ -38,6 +38,10 @@ def _pair_counts(xy, offsets, neighbours, guide, spacing, inv_width, expected, e
                 row[j] += guide[p] * (1.0 - f)
                 if j + 1 < m:
                     row[j + 1] += guide[p] * f
+        total = 0.0
+        for j in range(m):
+            total += row[j]
+            cumulative[c, j] = total
 
 
 @numba.njit(**_JIT)
@@ -65,6 +69,16 @@ def _distribute(values, member_offsets, by_member, window_of_entry, weights, out
             w = window_of_entry[e]
             for j in range(m):
                 out[c, j] += a * values[w, j]
+
+
+@numba.njit(**_JIT)
+def _add_reverse_cumsum(target, cumulative):  # pragma: no cover - jitted
+    n, m = target.shape
+    for c in numba.prange(n):
+        total = 0.0
+        for j in range(m - 1, -1, -1):
+            total += cumulative[c, j]
+            target[c, j] += total
 
 
 @numba.njit(**_JIT)
@@ -111,7 +125,9 @@ class FastObjective:
         self.owners = [windows.owners for windows in hood.windows]
         self.sums = [np.empty((len(windows.offsets) - 1, m)) for windows in hood.windows]
         self.excess = np.empty((n, m))
+        self.cumulative = np.empty((n, m))
         self.back = np.empty((n, m))
+        self.back_cumulative = np.empty((n, m))
         self.part = np.empty((n, m))
         self.force = np.empty((len(hood.neighbours), 2))
         self.grad = np.empty((n, 2))
@@ -120,12 +136,14 @@ class FastObjective:
         """Objective and gradient (n, 2) (a reused buffer: copy it to keep it) at xy (n, 2) float64."""
         hood = self.hood
         m = self.excess.shape[1]
-        _pair_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected, self.excess)
-        np.cumsum(self.excess, axis=1, out=self.excess)
+        _pair_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected,
+                     self.excess, self.cumulative)
         loss = 0.0
         self.back.fill(0.0)
+        self.back_cumulative.fill(0.0)
         for windows, owners, sums in zip(hood.windows, self.owners, self.sums):
-            _window_sums(self.excess, windows.offsets, windows.members, windows.weights, sums)
+            counts = self.cumulative if windows.scale.cumulative else self.excess
+            _window_sums(counts, windows.offsets, windows.members, windows.weights, sums)
             standardised = np.divide(sums, windows.deviation, out=sums)
             penalty, slope = dead_zone(standardised, windows.scale.dead_zone)
             scale = windows.scale.weight / (len(sums) * m)
@@ -134,11 +152,17 @@ class FastObjective:
                 slope *= scale
                 slope /= windows.deviation
                 _distribute(slope, windows.member_offsets, windows.by_member, owners, windows.weights, self.part)
-                self.back += self.part
+                (self.back_cumulative if windows.scale.cumulative else self.back).__iadd__(self.part)
         if not gradient:
             return loss, None
-        reverse = self.back[:, ::-1]
-        np.cumsum(reverse, axis=1, out=reverse)
+        _add_reverse_cumsum(self.back, self.back_cumulative)
         _forces(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, self.back, self.force, self.grad)
         _collect_forces(hood.neighbour_offsets, hood.by_neighbour, self.force, self.grad)
         return loss, self.grad
+
+
+def window_sums(values: np.ndarray, offsets: np.ndarray, members: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(W, m) window sums ``sum_q weights[q] values[members[q]]`` over each window's entries ``offsets[w]:offsets[w + 1]``."""
+    out = np.empty((len(offsets) - 1, values.shape[1]))
+    _window_sums(np.ascontiguousarray(values, np.float64), offsets, members, weights, out)
+    return out

@@ -30,7 +30,8 @@ from synthesis.pcf import neighbour_cutoff, pcf_radii, r_max, uniform_expectatio
 GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dimension
 DENSITY_FLOOR = 1e-3  # relative to the mean density: keeps spacings finite in white areas
 FIELD_MAX_SIDE = 256  # fields are computed on the map resampled to at most this many pixels per side
-RING_SPACING = 0.4  # quadrature: arc length between nodes on a ring, in units of the local spacing
+RING_STEP = 0.1  # quadrature: radial step between rings (at least one bin), in units of the local spacing
+RING_SPACING = 0.5  # quadrature: arc length between nodes on a ring, in units of the local spacing
 UNIFORM_TOLERANCE = 1e-4  # relative intensity / latent change below which a neighbourhood counts as uniform
 POISSON_PAIR_SCALE = 2.0 / math.sqrt(3.0)  # intensity * r_max^2, the same at every density
 
@@ -166,8 +167,8 @@ class MapFields:
         The tent counts a Poisson pattern of the map's intensity gives around a
         point at x. Points whose pixel has a uniform neighbourhood get the exact
         unbounded value ``lambda s^2 E_j`` (= 2/sqrt(3) E_j). Elsewhere polar
-        quadrature around the point itself in units of s(x) (rings at the bin
-        midpoints, nodes :data:`RING_SPACING` apart along each ring; lambda = 0
+        quadrature around the point itself in units of s(x) (rings
+        :data:`RING_STEP` apart, nodes :data:`RING_SPACING` apart along each ring; lambda = 0
         outside the domain; z and lambda bilinear, exactly as the estimator
         samples them at the points), divided by the same quadrature of the
         unbounded uniform case and times the exact value, so quadrature error
@@ -211,11 +212,12 @@ class MapFields:
         """Polar nodes in units of the spacing: radii u (Q,), offsets dx, dy (Q,), tent weights x area (Q, m)."""
         width_bin = float(self.radii[1] - self.radii[0])
         nodes = []
-        for u in (np.arange(len(self.radii)) + 0.5) * width_bin:
+        ring_step = max(width_bin, RING_STEP)
+        for u in np.arange(0.5 * ring_step, self.radii[-1] + width_bin, ring_step):
             count = max(8, math.ceil(2 * math.pi * u / RING_SPACING))
             theta = (np.arange(count) + 0.5) * (2 * math.pi / count)
             nodes.append(np.stack([np.full(count, u), u * np.cos(theta), u * np.sin(theta),
-                                   np.full(count, u * width_bin * 2 * math.pi / count)]))
+                                   np.full(count, u * ring_step * 2 * math.pi / count)]))
         u, dx, dy, area = np.concatenate(nodes, axis=1)
         tent = np.clip(1 - np.abs(u[:, None] - self.radii[None, :]) / width_bin, 0, None) * area[:, None]
         return u, dx, dy, tent

@@ -28,8 +28,8 @@ from scipy.spatial import cKDTree
 
 from synthesis.errors import PatternshopError
 
-PCF_BINS = 26
-BIN_WIDTH = 0.1  # in units of r_max: radii 0, 0.1, ..., 2.5
+PCF_BINS = 52
+BIN_WIDTH = 0.05  # in units of r_max: radii 0, 0.05, ..., 2.55
 CENTRE_CHUNK = 16384  # centres per block in stationary_pcf: bounds memory at (chunk, k) temporaries
 FIRST_NEIGHBOURS = 48  # k of the first k-NN query; rows still full within the cutoff are asked again with 2k
 

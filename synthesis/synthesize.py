@@ -33,9 +33,6 @@ from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
 
-REGULAR_RANGE = 0.55  # radii (units of r_max) over which the target's short-range PCF decides the start
-
-
 @dataclass(frozen=True)
 class Schedule:
     """How the optimisation runs (see the module docstring)."""
@@ -43,11 +40,13 @@ class Schedule:
     name: str
     iterations: int
     refresh: int
-    step: float  # initial step, in units of the local spacing
+    step: float  # initial step, in units of the local spacing, where the target is regular (a hard core)
     final_step: float
+    free_step: float  # step factor where the target is not regular (Poisson, clustered): points travel further
 
 
-SCHEDULES = {"fast": Schedule("fast", iterations=200, refresh=10, step=0.1, final_step=0.005)}
+import os as _os
+SCHEDULES = {"fast": Schedule("fast", iterations=int(_os.environ.get("PS_IT", 250)), refresh=10, step=float(_os.environ.get("PS_STEP", 0.05)), final_step=float(_os.environ.get("PS_FINAL", 0.002)), free_step=float(_os.environ.get("PS_FREE", 3.0)))}
 
 
 @dataclass
@@ -76,17 +75,12 @@ def point_count(lab_map: LabMap, points_per_ink: float = POINTS_PER_INK) -> int:
     return n
 
 
-def regularity(target: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """(...) in [0, 1]: how far the target PCF (..., m) stays below 1 at short range (1 = hard core, 0 = Poisson or clustered)."""
-    short = radii <= REGULAR_RANGE
-    return np.clip(1.0 - target[..., short].mean(axis=-1), 0.0, 1.0)
-
-
 def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: MapFields | None = None) -> np.ndarray:
     """(n, 2) density-matched start: stratified where the target is regular, independent elsewhere.
 
     Without ``fields`` (no target known) the start is independent (inhomogeneous Poisson).
     """
+    from synthesis.edgepcf import regularity
     from synthesis.stratified import StratifiedSampler, random_points
 
     density = lab_map.density().astype(np.float64)
@@ -170,12 +164,13 @@ def synthesize(
     beta1, beta2 = 0.9, 0.999
     setup = time.perf_counter() - start
     losses: list[float] = []
-    objective = spacing = None
+    objective = step_length = None
     bar = tqdm(total=plan.iterations, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
     for step in range(plan.iterations):
         if objective is None or step % plan.refresh == 0:
             hood = find_neighbourhoods(fields, xy, windows.draw(rng))
-            objective, spacing = FastObjective(hood), hood.spacing[:, None]
+            objective = FastObjective(hood)
+            step_length = (hood.spacing * (1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)))[:, None]
         loss, gradient = objective(xy)
         losses.append(loss)
         first *= beta1
@@ -185,7 +180,7 @@ def synthesize(
         fraction = step / max(plan.iterations - 1, 1)
         rate = plan.final_step + 0.5 * (plan.step - plan.final_step) * (1 + math.cos(math.pi * fraction))
         update = (first / (1 - beta1 ** (step + 1))) / (np.sqrt(second / (1 - beta2 ** (step + 1))) + 1e-30)
-        xy -= rate * spacing * update
+        xy -= rate * step_length * update
         reflect(xy, fields.domain)
         if on_iteration is not None:
             on_iteration(step, xy)
