@@ -3,12 +3,13 @@
 ``python -m data_gen.palette_table [--palette IN] [--output OUT]`` rebuilds the
 PCF side of a palette asset without touching its layout (the exemplars' latent
 coordinates and perceptual codes): it re-measures every exemplar's PCF with the
-current estimator (:func:`synthesis.pcf.stationary_pcf`), makes each named
+current estimator (:func:`synthesis.pcf.stationary_pcf`) and its count
+dispersion (:func:`synthesis.pcf.count_dispersion`, the synthesiser's noise model), makes each named
 preset an exemplar of its own generator (points, perceptual code and the
 generator's PCF averaged over several realisations, placed on the 8-bit
 colour grid node nearest to the preset's old colour, so that painting the
 preset's 8-bit colour asks for exactly that generator's PCF), and recomputes
-the 256 x 256 IDW look-up table. The full build (:mod:`data_gen.palette`) uses
+the 256 x 256 IDW look-up table (and a 64 x 64 one of the dispersion). The full build (:mod:`data_gen.palette`) uses
 the same functions. A provenance record goes into the asset's ``.json``
 (section ``table``).
 """
@@ -23,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from synthesis.palette import DEFAULT_PALETTE, LUT_SIZE, Palette, ab_to_latent, hue_chroma, latent_to_ab
-from synthesis.pcf import pcf_radii, stationary_pcf
+from synthesis.palette import DEFAULT_PALETTE, DISPERSION_LUT_SIZE, LUT_SIZE, Palette, ab_to_latent, hue_chroma, latent_to_ab
+from synthesis.pcf import count_dispersion, pcf_radii, stationary_pcf
 
 PRESET_POINTS = 4096  # generator realisations measured per preset ...
 PRESET_REALISATIONS = 6  # ... and how many, averaged
@@ -33,17 +34,21 @@ KDE_WINDOW = 0.01  # IDW locality (SPEC §2.1)
 LOCALITY = (3.0, 6.0)
 
 
-def exemplar_pcfs(points: np.ndarray) -> np.ndarray:
-    """(N, m) PCFs of N toroidal exemplar point sets (N, P, 2) in [0, 1)^2."""
-    return np.stack([stationary_pcf(p, periodic=True) for p in points]).astype(np.float32)
+def exemplar_statistics(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, m) PCFs and (N, m) count dispersions of N toroidal exemplar point sets (N, P, 2) in [0, 1)^2."""
+    pcf = np.stack([stationary_pcf(p, periodic=True) for p in points])
+    dispersion = np.stack([count_dispersion(p, periodic=True) for p in points])
+    return pcf.astype(np.float32), dispersion.astype(np.float32)
 
 
-def generator_pcf(name: str, n: int = PRESET_POINTS, realisations: int = PRESET_REALISATIONS,
-                  seed: int = PRESET_SEED) -> np.ndarray:
-    """(m,) mean PCF of ``realisations`` toroidal patterns of generator ``name`` with n points."""
+def generator_statistics(name: str, n: int = PRESET_POINTS, realisations: int = PRESET_REALISATIONS,
+                         seed: int = PRESET_SEED) -> tuple[np.ndarray, np.ndarray]:
+    """(m,) mean PCF and (m,) mean count dispersion of ``realisations`` toroidal patterns of generator ``name`` (n points)."""
     from synthesis.generators import generate
 
-    return np.mean([stationary_pcf(generate(name, n, seed + i), periodic=True) for i in range(realisations)], axis=0)
+    patterns = [generate(name, n, seed + i) for i in range(realisations)]
+    return (np.mean([stationary_pcf(p, periodic=True) for p in patterns], axis=0),
+            np.mean([count_dispersion(p, periodic=True) for p in patterns], axis=0))
 
 
 def snap_to_grid(z: np.ndarray) -> np.ndarray:
@@ -51,13 +56,13 @@ def snap_to_grid(z: np.ndarray) -> np.ndarray:
     return ab_to_latent(np.rint(latent_to_ab(z)))
 
 
-def look_up_table(z: np.ndarray, pcf: np.ndarray) -> np.ndarray:
-    """(256, 256, m) IDW table (paper eq. 4) of exemplar PCFs (N, m) at latents z (N, 2)."""
+def look_up_table(z: np.ndarray, values: np.ndarray, size: int = LUT_SIZE) -> np.ndarray:
+    """(size, size, m) IDW table (paper eq. 4) of exemplar values (N, m) at latents z (N, 2); nodes at (i, j) / (size - 1)."""
     from data_gen.embedding import idw_encode, kde_locality
 
-    grid = np.stack(np.meshgrid(np.arange(LUT_SIZE), np.arange(LUT_SIZE), indexing="ij"), axis=-1).reshape(-1, 2) / (LUT_SIZE - 1)
+    grid = np.stack(np.meshgrid(np.arange(size), np.arange(size), indexing="ij"), axis=-1).reshape(-1, 2) / (size - 1)
     power = kde_locality(grid, z, KDE_WINDOW, *LOCALITY)
-    return idw_encode(grid, z, pcf, power).reshape(LUT_SIZE, LUT_SIZE, -1).astype(np.float32)
+    return idw_encode(grid, z, values, power).reshape(size, size, -1).astype(np.float32)
 
 
 def with_preset_exemplars(palette: Palette, exemplar_points_count: int, log=print) -> tuple[Palette, dict]:  # noqa: ANN001
@@ -70,8 +75,8 @@ def with_preset_exemplars(palette: Palette, exemplar_points_count: int, log=prin
     points = palette.exemplar_points.copy()
     codes = palette.codes.copy()
     start = time.perf_counter()
-    pcf = exemplar_pcfs(points)
-    log(f"[table] {len(points)} exemplar PCFs re-measured: {time.perf_counter() - start:.1f} s")
+    pcf, dispersion = exemplar_statistics(points)
+    log(f"[table] {len(points)} exemplar PCFs and dispersions measured: {time.perf_counter() - start:.1f} s")
     presets, record = {}, {}
     for name, preset in palette.presets.items():
         from synthesis.generators import generate
@@ -79,7 +84,7 @@ def with_preset_exemplars(palette: Palette, exemplar_points_count: int, log=prin
         index = int(preset["exemplar"])
         z[index] = snap_to_grid(z[index])
         points[index] = generate(name, exemplar_points_count, PRESET_SEED)
-        pcf[index] = generator_pcf(name)
+        pcf[index], dispersion[index] = generator_statistics(name)
         codes[index] = palette.reduce(palette._extractor(points[index], (1.0, 1.0), True))
         a, b = (float(v) for v in latent_to_ab(z[index]))
         hue, chroma = hue_chroma(a, b)
@@ -89,9 +94,11 @@ def with_preset_exemplars(palette: Palette, exemplar_points_count: int, log=prin
         log(f"[table] preset {name}: exemplar {index} -> generator at ({a:.0f}, {b:.0f})")
     start = time.perf_counter()
     lut = look_up_table(z, pcf)
-    log(f"[table] look-up table: {time.perf_counter() - start:.1f} s")
+    dispersion_lut = look_up_table(z, dispersion, DISPERSION_LUT_SIZE)
+    log(f"[table] look-up tables: {time.perf_counter() - start:.1f} s")
     new = Palette(radii=pcf_radii(), lut=lut, exemplar_z=z, exemplar_pcf=pcf, exemplar_points=points,
-                  exemplar_spectrum=palette.exemplar_spectrum, codes=codes, feature_mean=palette.feature_mean,
+                  exemplar_spectrum=palette.exemplar_spectrum, exemplar_dispersion=dispersion,
+                  dispersion_lut=dispersion_lut, codes=codes, feature_mean=palette.feature_mean,
                   components=palette.components, block_scale=palette.block_scale, presets=presets,
                   extractor=palette.extractor)
     return new, record
@@ -109,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     from synthesis.errors import PatternshopError
 
     try:
-        palette = Palette.load(args.palette)
+        palette = Palette.load(args.palette, layout_only=True)
     except PatternshopError as exc:
         print(f"palette_table: error: {exc}", file=sys.stderr)
         return 2

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from synthesis.fields import MapFields, guide_similarity
+from synthesis.fields import DenominatorTracker, MapFields, guide_similarity
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff, neighbours_within
@@ -53,6 +53,8 @@ from synthesis.stratified import StratifiedSampler
 CUMULATIVE_VARIANCE = (1.0, 5.0)  # Var / (sum a^2 K) of a window's cumulative count at radius rho: 1 + 5 rho (Poisson, measured)
 BIN_VARIANCE = 1.3  # Var / (sum a^2 S) of a window's count per radius (Poisson, measured: each pair in two counts, tent^2)
 REGULAR_RANGE = 0.55  # radii (units of r_max) over which the target's short-range PCF measures its regularity
+POISSON_TOLERANCE = 0.1  # a target PCF within this of 1 at every radius is white noise (exemplar noise is ~0.07)
+STRUCTURE_RANGE = 0.4  # ... and from this much further on, a structured one
 VARIANCE_FLOOR = 0.05  # pairs^2: one stray pair where the target expects none is 4.5 standard deviations
 
 
@@ -67,6 +69,7 @@ class WindowScale:
         weight: the family's weight in the objective.
         cumulative: score cumulative counts (pairs closer than each radius: every step
             out of a hard core pays) instead of the counts per radius (the PCF's shape).
+        compensation: factor of the variance compensation (see :func:`_variance_force`; measured).
     """
 
     radius: float
@@ -74,12 +77,15 @@ class WindowScale:
     dead_zone: float
     weight: float
     cumulative: bool
+    compensation: float = 0.0
 
 
 # Local windows (~40 points) catch outliers (holes, stacks, broken hard cores) and leave a true
-# sample's natural variation alone; regional windows (~230 points) match the PCF's mean shape.
+# sample's natural variation alone; regional windows (~900 points) match the PCF's mean exactly,
+# with few enough constraints (n / 200 windows) that they cannot fit a sample's noise.
 WINDOW_SCALES = (WindowScale(radius=3.3, points_per_window=8.0, dead_zone=2.0, weight=1.0, cumulative=True),
-                 WindowScale(radius=8.0, points_per_window=48.0, dead_zone=0.0, weight=1.0, cumulative=True))
+                 WindowScale(radius=16.0, points_per_window=200.0, dead_zone=0.0, weight=1.0, cumulative=True,
+                             compensation=2.0))
 
 
 @dataclass
@@ -133,10 +139,16 @@ class Neighbourhoods:
         by_neighbour: (P,) int64 pair indices sorted by neighbour (the transposed pair lists) ...
         neighbour_offsets: (n + 1,) int64 ... with these offsets per neighbour.
         spacing: (n,) local r_max at the points.
-        expected: (n, m) target tent counts ``g D`` around each point.
+        dispersion: (n, m) the target's count dispersion at each point (variance model).
+        expected: (n, m) target tent counts ``g D`` around each point at ``anchor`` ...
+        anchor: (n, 2) ... the positions at the refresh; for points near borders and edges ...
+        sloped: (K,) int64 ... (these) the expected counts change with position ...
+        expected_slope: (K, m, 2) ... by ``g grad D`` (linearised between refreshes).
+        variance_force: (K, 2) gradient of the variance compensation at the sloped points (see :func:`_variance_force`).
         windows: one :class:`Windows` per :data:`WINDOW_SCALES` entry.
         radii: (m,) radii in units of r_max.
         regularity: (n,) in [0, 1], how far the target PCF at each point stays below 1 at short range.
+        structure: (n,) in [0, 1], how far the target PCF at each point is from Poisson's (0: white noise).
     """
 
     offsets: np.ndarray
@@ -145,10 +157,16 @@ class Neighbourhoods:
     by_neighbour: np.ndarray
     neighbour_offsets: np.ndarray
     spacing: np.ndarray
+    dispersion: np.ndarray
     expected: np.ndarray
+    anchor: np.ndarray
+    sloped: np.ndarray
+    expected_slope: np.ndarray
+    variance_force: np.ndarray
     windows: list[Windows]
     radii: np.ndarray
     regularity: np.ndarray
+    structure: np.ndarray
 
     @property
     def centres(self) -> np.ndarray:
@@ -201,9 +219,9 @@ class WindowSampler:
 
 
 def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.ndarray, expected: np.ndarray,
-             centres: np.ndarray) -> Windows:
+             variance: np.ndarray, centres: np.ndarray) -> Windows:
     n = tree.n
-    at = fields.at(centres)
+    at = fields.at(centres, denominator=False)
     reach = scale.radius * at["spacing"].astype(np.float64)
     distance, index = neighbours_within(tree, centres, reach)
     valid = index < n
@@ -215,7 +233,7 @@ def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.nd
     by_member, member_offsets = _transpose(members, n)
     windows = Windows(scale, offsets, members, weights, by_member, member_offsets, np.empty(0))
     if scale.cumulative:
-        squared = window_squares(np.cumsum(expected, axis=1), windows)
+        squared = window_squares(variance, windows)
         factor = CUMULATIVE_VARIANCE[0] + (CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0) * (fields.radii + (fields.radii[1] - fields.radii[0]))
     else:
         squared = window_squares(expected, windows)
@@ -224,18 +242,21 @@ def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.nd
     return windows
 
 
-def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None) -> Neighbourhoods:
+def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None,
+                        denominators: DenominatorTracker | None = None) -> Neighbourhoods:
     """Every pair within the estimator's reach (cutoff x spacing of the centre), windows, and the fields at the points.
 
     ``window_centres``: one (W, 2) array per :data:`WINDOW_SCALES` entry, where the
     windows sit; they must not depend on the pattern (default: a fixed-seed
     :class:`WindowSampler` draw; the synthesiser draws new ones at every refresh).
+    ``denominators``: a tracker that recomputes only moved points (default: all computed).
     """
     xy = np.asarray(xy, np.float64)
     n = len(xy)
     if window_centres is None:
         window_centres = WindowSampler(fields).draw(np.random.default_rng(0))
-    at = fields.at(xy)
+    at = fields.at(xy, denominator=False)
+    denominator, sloped, slope = (denominators or DenominatorTracker(fields)).update(xy)
     spacing = at["spacing"].astype(np.float64)
     latent = at["latent"].astype(np.float64)
     tree = cKDTree(xy)
@@ -243,11 +264,49 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     offsets, neighbours = _csr(index, (index < n) & (index != np.arange(n)[:, None]))
     centres = _owners(offsets)
     guide = guide_similarity(latent[neighbours], latent[centres]) if fields.guide else np.ones(len(neighbours))
-    expected = at["target"].astype(np.float64) * at["denominator"]
-    windows = [_windows(scale, fields, tree, latent, expected, where) for scale, where in zip(WINDOW_SCALES, window_centres)]
+    target = at["target"].astype(np.float64)
+    expected = target * denominator
+    dispersion = at["dispersion"].astype(np.float64)
+    variance = dispersion * (np.cumsum(expected, axis=1) + 1.0)  # per point, cumulative counts
+    windows = [_windows(scale, fields, tree, latent, expected, variance, where)
+               for scale, where in zip(WINDOW_SCALES, window_centres)]
     by_neighbour, neighbour_offsets = _transpose(neighbours, n)
-    return Neighbourhoods(offsets, neighbours, guide, by_neighbour, neighbour_offsets, spacing, expected, windows,
-                          np.asarray(fields.radii, np.float64), regularity(at["target"], fields.radii))
+    expected_slope = target[sloped][..., None] * slope
+    return Neighbourhoods(offsets, neighbours, guide, by_neighbour, neighbour_offsets, spacing, dispersion, expected, xy.copy(),
+                          sloped, expected_slope, _variance_force(windows, sloped, dispersion[sloped][..., None] * np.cumsum(expected_slope, axis=1),
+                                                                  fields.radii), windows,
+                          np.asarray(fields.radii, np.float64), regularity(at["target"], fields.radii),
+                          structure(at["target"]))
+
+
+def _variance_force(windows: list[Windows], sloped: np.ndarray, variance_slope: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(K, 2) gradient of the quadratic windows' variance compensation at the sloped points.
+
+    A quadratic window loss has expectation ``bias^2 + Var(r)`` even at a true
+    sample, and ``Var(r)`` grows with the window's expected counts: without
+    compensation the optimiser lowers variance by moving points to where they
+    expect fewer neighbours (onto borders and edges). The objective therefore
+    subtracts the model variance ``sum_c a_wc^2 f_j V_c(x_c)`` (f_j from
+    :data:`CUMULATIVE_VARIANCE`, V_c the point's count variance: dispersion x
+    (expected cumulative count + 1)) of each quadratic window over its
+    deviation^2; it depends on positions only through the sloped points'
+    expected counts, ``variance_slope`` (K, m, 2) = dispersion x grad K.
+    """
+    from synthesis.edgepcf_fast import distribute_sums
+
+    force = np.zeros((len(sloped), 2))
+    if not len(sloped):
+        return force
+    width = radii[1] - radii[0]
+    model = CUMULATIVE_VARIANCE[0] + CUMULATIVE_VARIANCE[1] * (radii + width)
+    for family in windows:
+        if not family.scale.compensation or not family.scale.cumulative:
+            continue
+        scale = family.scale.compensation * family.scale.weight / family.deviation.size
+        per_point = distribute_sums(model / family.deviation**2, family.member_offsets, family.by_member,
+                                    family.owners, family.weights**2)
+        force -= scale * np.einsum("kj,kjd->kd", per_point[sloped], variance_slope)
+    return force
 
 
 def regularity(target: np.ndarray, radii: np.ndarray) -> np.ndarray:
@@ -256,10 +315,25 @@ def regularity(target: np.ndarray, radii: np.ndarray) -> np.ndarray:
     return np.clip(1.0 - target[..., short].mean(axis=-1), 0.0, 1.0)
 
 
+def structure(target: np.ndarray) -> np.ndarray:
+    """(...) in [0, 1]: how far the target PCF (..., m) departs from 1 anywhere (0 within :data:`POISSON_TOLERANCE`).
+
+    A white-noise target is what the independent start already is: its points need not move.
+    """
+    return np.clip((np.abs(target - 1.0).max(axis=-1) - POISSON_TOLERANCE) / STRUCTURE_RANGE, 0.0, 1.0)
+
+
 def dead_zone(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
     """Penalty ``max(|x| - width, 0)^2`` and its derivative, elementwise on standardised deviations x."""
     excess = np.maximum(np.abs(x) - width, 0.0)
     return excess**2, 2.0 * np.sign(x) * excess
+
+
+def expected_counts(xy: np.ndarray, hood: Neighbourhoods) -> np.ndarray:
+    """(n, m) target tent counts at positions xy (n, 2), linearised around the refresh's positions."""
+    expected = hood.expected.copy()
+    expected[hood.sloped] += np.einsum("kjd,kd->kj", hood.expected_slope, xy[hood.sloped] - hood.anchor[hood.sloped])
+    return expected
 
 
 def pair_counts_reference(xy: np.ndarray, hood: Neighbourhoods) -> np.ndarray:
@@ -281,7 +355,7 @@ def objective_reference(xy: np.ndarray, hood: Neighbourhoods, gradient: bool = T
     """Objective L (see the module docstring) and its gradient (n, 2) w.r.t. xy (n, 2); plain numpy."""
     xy = np.asarray(xy, np.float64)
     n, m = len(xy), len(hood.radii)
-    excess = pair_counts_reference(xy, hood) - hood.expected
+    excess = pair_counts_reference(xy, hood) - expected_counts(xy, hood)
     cumulative = np.cumsum(excess, axis=1)
     loss, back, back_cumulative = 0.0, np.zeros((n, m)), np.zeros((n, m))
     for windows in hood.windows:
@@ -294,9 +368,10 @@ def objective_reference(xy: np.ndarray, hood: Neighbourhoods, gradient: bool = T
             back_cumulative += part  # dL/dK (cumulative counts)
         else:
             back += part
+    loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))
     if not gradient:
         return loss, None
-    back += np.cumsum(back_cumulative[:, ::-1], axis=1)[:, ::-1]  # dL/dS
+    back += np.cumsum(back_cumulative[:, ::-1], axis=1)[:, ::-1]  # dL/dS = -dL/dE
     back = np.concatenate([back, np.zeros((n, 1))], axis=1)
     centres = hood.centres
     width = hood.radii[1] - hood.radii[0]
@@ -311,6 +386,8 @@ def objective_reference(xy: np.ndarray, hood: Neighbourhoods, gradient: bool = T
     grad = np.zeros((n, 2))
     np.add.at(grad, hood.neighbours[keep], force)
     np.add.at(grad, centres[keep], -force)
+    grad[hood.sloped] -= np.einsum("kj,kjd->kd", back[hood.sloped, :m], hood.expected_slope)
+    grad[hood.sloped] += hood.variance_force
     return loss, grad
 
 
@@ -332,7 +409,7 @@ def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
     points = np.asarray(points, np.float64)
     hood = find_neighbourhoods(fields, points)
     windows = hood.windows[0]
-    poisson = windows.aggregate(fields.at(points)["denominator"])
+    poisson = windows.aggregate(fields.denominator_at(points))
     observed = windows.aggregate(pair_counts_reference(points, hood)) / poisson
     target = windows.aggregate(hood.expected) / poisson
     return np.abs(observed - target).mean(axis=1), fields

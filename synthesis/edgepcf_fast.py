@@ -138,6 +138,10 @@ class FastObjective:
         m = self.excess.shape[1]
         _pair_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected,
                      self.excess, self.cumulative)
+        if len(hood.sloped):  # expected counts that move with the point (near borders and edges)
+            shift = np.einsum("kjd,kd->kj", hood.expected_slope, xy[hood.sloped] - hood.anchor[hood.sloped])
+            self.excess[hood.sloped] -= shift
+            self.cumulative[hood.sloped] -= np.cumsum(shift, axis=1)
         loss = 0.0
         self.back.fill(0.0)
         self.back_cumulative.fill(0.0)
@@ -153,11 +157,16 @@ class FastObjective:
                 slope /= windows.deviation
                 _distribute(slope, windows.member_offsets, windows.by_member, owners, windows.weights, self.part)
                 (self.back_cumulative if windows.scale.cumulative else self.back).__iadd__(self.part)
+        if len(hood.sloped):
+            loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))
         if not gradient:
             return loss, None
         _add_reverse_cumsum(self.back, self.back_cumulative)
         _forces(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, self.back, self.force, self.grad)
         _collect_forces(hood.neighbour_offsets, hood.by_neighbour, self.force, self.grad)
+        if len(hood.sloped):
+            self.grad[hood.sloped] -= np.einsum("kj,kjd->kd", self.back[hood.sloped], hood.expected_slope)
+            self.grad[hood.sloped] += hood.variance_force
         return loss, self.grad
 
 
@@ -165,4 +174,12 @@ def window_sums(values: np.ndarray, offsets: np.ndarray, members: np.ndarray, we
     """(W, m) window sums ``sum_q weights[q] values[members[q]]`` over each window's entries ``offsets[w]:offsets[w + 1]``."""
     out = np.empty((len(offsets) - 1, values.shape[1]))
     _window_sums(np.ascontiguousarray(values, np.float64), offsets, members, weights, out)
+    return out
+
+
+def distribute_sums(values: np.ndarray, member_offsets: np.ndarray, by_member: np.ndarray, owners: np.ndarray,
+                    weights: np.ndarray) -> np.ndarray:
+    """(n, m) per-point sums ``sum weights[e] values[owners[e]]`` over each point's entries (the adjoint of :func:`window_sums`)."""
+    out = np.empty((len(member_offsets) - 1, values.shape[1]))
+    _distribute(np.ascontiguousarray(values, np.float64), member_offsets, by_member, owners, weights, out)
     return out

@@ -31,8 +31,11 @@ GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dime
 DENSITY_FLOOR = 1e-3  # relative to the mean density: keeps spacings finite in white areas
 FIELD_MAX_SIDE = 256  # fields are computed on the map resampled to at most this many pixels per side
 RING_STEP = 0.1  # quadrature: radial step between rings (at least one bin), in units of the local spacing
+RECOMPUTE_DISTANCE = 0.1  # a point's denominator is recomputed once it moved this many spacings (else linearised)
+SLOPE_STEP = 0.25  # finite-difference step of the denominator's gradient, in units of the local spacing
 RING_SPACING = 0.5  # quadrature: arc length between nodes on a ring, in units of the local spacing
-UNIFORM_TOLERANCE = 1e-4  # relative intensity / latent change below which a neighbourhood counts as uniform
+UNIFORM_TOLERANCE = (0.02, 0.005)  # log-intensity and latent spreads below which a neighbourhood counts as uniform
+# (the denominator then differs from the uniform value by well under 1 %: a linear trend cancels around the point)
 POISSON_PAIR_SCALE = 2.0 / math.sqrt(3.0)  # intensity * r_max^2, the same at every density
 
 
@@ -69,7 +72,7 @@ def _at_most(lab_map: LabMap, side: int) -> LabMap:
         return lab_map
     rows = _area_matrix(lab_map.height, max(1, round(lab_map.height * side / longest)))
     cols = _area_matrix(lab_map.width, max(1, round(lab_map.width * side / longest)))
-    lab = np.einsum("ih,hwc,jw->ijc", rows, np.asarray(lab_map.lab, np.float64), cols)
+    lab = np.einsum("ih,hwc,jw->ijc", rows, np.asarray(lab_map.lab, np.float64), cols, optimize=True)
     return LabMap(lab.astype(np.float32))
 
 
@@ -90,6 +93,7 @@ class MapFields:
         spacing: (H, W, 1) local r_max.
         latent: (H, W, 2) guide z in [0, 1].
         target: (H, W, m) target PCF.
+        dispersion: (H, W, m) the target's count dispersion (variance model; :func:`synthesis.pcf.count_dispersion`).
         uniform: (H, W) bool, the pixel's neighbourhood is uniform (see :meth:`_uniform_pixels`).
         radii: (m,) radii in units of r_max.
         guide: whether the guidance term is used.
@@ -102,6 +106,7 @@ class MapFields:
     spacing: np.ndarray
     latent: np.ndarray
     target: np.ndarray
+    dispersion: np.ndarray
     uniform: np.ndarray
     radii: np.ndarray
     guide: bool = True
@@ -130,6 +135,7 @@ class MapFields:
             intensity=intensity[..., None].astype(np.float32),
             spacing=r_max(intensity)[..., None].astype(np.float32),
             latent=latent, target=palette.pcf_at_latent(latent).astype(np.float32),
+            dispersion=palette.dispersion_at_latent(latent).astype(np.float32),
             uniform=np.empty(0, bool), radii=radii, guide=guide,
         )
         fields.uniform = fields._uniform_pixels()
@@ -152,27 +158,34 @@ class MapFields:
             need = (reach <= half) & (reach > half // 2 if half > 1 else True)
             if need.any():
                 flat = np.ones((height, width), bool)
-                for channel in channels:
+                for channel, tolerance in zip(channels, (UNIFORM_TOLERANCE[0], UNIFORM_TOLERANCE[1], UNIFORM_TOLERANCE[1])):
                     size = 2 * half + 1
                     spread = ndimage.maximum_filter(channel, size, mode="nearest") - ndimage.minimum_filter(channel, size, mode="nearest")
-                    flat &= spread <= UNIFORM_TOLERANCE
+                    flat &= spread <= tolerance
                 uniform |= need & flat & (to_border >= half)
             if half >= max(height, width) or half >= reach.max():
                 return uniform
             half *= 2
 
-    def denominator_at(self, xy: np.ndarray) -> np.ndarray:
-        """(n, m) ``int lambda(y) K_j(|y - x| / s(x)) H(z(y), z(x)) dy / lambda(x)`` times lambda(x), at points xy (n, 2).
+    def denominator_at(self, xy: np.ndarray, slope: bool = False):  # noqa: ANN201 - array or (array, array, array)
+        """(n, m) ``int lambda(y) K_j(|y - x| / s(x)) H(z(y), z(x)) dy`` at points xy (n, 2).
 
         The tent counts a Poisson pattern of the map's intensity gives around a
         point at x. Points whose pixel has a uniform neighbourhood get the exact
         unbounded value ``lambda s^2 E_j`` (= 2/sqrt(3) E_j). Elsewhere polar
         quadrature around the point itself in units of s(x) (rings
-        :data:`RING_STEP` apart, nodes :data:`RING_SPACING` apart along each ring; lambda = 0
-        outside the domain; z and lambda bilinear, exactly as the estimator
-        samples them at the points), divided by the same quadrature of the
-        unbounded uniform case and times the exact value, so quadrature error
-        cancels and only edges, borders and gradients move it.
+        :data:`RING_STEP` apart, nodes :data:`RING_SPACING` apart along each
+        ring; lambda = 0 outside the domain; z and lambda bilinear, exactly as
+        the estimator samples them at the points), divided by the same
+        quadrature of the unbounded uniform case and times the exact value, so
+        quadrature error cancels and only edges, borders and gradients move it.
+
+        With ``slope=True`` also returns the indices (K,) of the points that are
+        not uniform and the gradient (K, m, 2) of their denominator with respect
+        to the point's position (s and z held at the point's values; forward
+        differences of :data:`SLOPE_STEP` spacings). Without it, the estimator's
+        gradient misses that a point moving away from a border or an edge gains
+        expected neighbours, and points drift off borders and edges.
         """
         xy = np.asarray(xy, np.float64)
         m = len(self.radii)
@@ -182,19 +195,59 @@ class MapFields:
         col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
         row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
         todo = np.flatnonzero(~self.uniform[row, col])
-        if not len(todo):
-            return out
-        u, dx, dy, tent = self._quadrature
+        gradient = np.zeros((len(todo), m, 2))
+        if len(todo):
+            spacing = sample_grid(self.spacing, xy[todo], self.side_px)[:, 0]
+            latent = sample_grid(self.latent, xy[todo], self.side_px)
+            own = sample_grid(self.intensity, xy[todo], self.side_px)[:, 0]
+            out[todo] = self._quadrature_at(xy[todo], spacing, latent, own) * exact
+            if slope:
+                for axis in (0, 1):
+                    step = np.zeros(2)
+                    step[axis] = 1.0
+                    shift = (SLOPE_STEP * spacing)[:, None] * step
+                    ahead = self._quadrature_at(xy[todo] + shift, spacing, latent, own) * exact
+                    gradient[..., axis] = (ahead - out[todo]) / (SLOPE_STEP * spacing)[:, None]
+        return (out, todo, gradient) if slope else out
+
+    def _quadrature_at(self, xy: np.ndarray, spacing: np.ndarray, latent: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """(k, m) quadrature ratio (1 in a uniform neighbourhood) around points xy (k, 2) with spacing (k,), latent (k, 2), intensity (k,).
+
+        The fused kernel of :mod:`synthesis.fields_fast`; :meth:`_quadrature_reference` is the plain version.
+        """
+        from synthesis.fields_fast import ring_means
+
+        _, dx, dy, tent = self._quadrature
+        ring_tent, node_ring = self._rings
+        means = ring_means(self.intensity[..., 0].astype(np.float64), self.latent[..., 0].astype(np.float64),
+                           self.latent[..., 1].astype(np.float64), xy[:, 0] * self.side_px - 0.5,
+                           xy[:, 1] * self.side_px - 0.5, spacing * self.side_px, latent[:, 0].astype(np.float64),
+                           latent[:, 1].astype(np.float64), own.astype(np.float64), dx, dy, node_ring,
+                           len(ring_tent), self.guide, GUIDE_BANDWIDTH)
+        return (means @ ring_tent) / ring_tent.sum(0)
+
+    @functools.cached_property
+    def _rings(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tent weights x ring area (R, m) of the quadrature's rings and the ring of every node (Q,) int64."""
+        u, _, _, tent = self._quadrature
+        radii, node_ring = np.unique(u, return_inverse=True)
+        ring_tent = np.zeros((len(radii), tent.shape[1]))
+        np.add.at(ring_tent, node_ring, tent)
+        return ring_tent, node_ring.astype(np.int64)
+
+    def _quadrature_reference(self, xy: np.ndarray, spacing: np.ndarray, latent: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """Plain numpy/scipy version of :meth:`_quadrature_at` (tests compare them)."""
+        height, width, _ = self.intensity.shape
+        _, dx, dy, tent = self._quadrature
         free = tent.sum(0)
-        spacing = sample_grid(self.spacing, xy[todo], self.side_px)[:, 0] * self.side_px  # in pixels
-        latent = sample_grid(self.latent, xy[todo], self.side_px)
-        own = sample_grid(self.intensity, xy[todo], self.side_px)[:, 0]
-        px0, py0 = xy[todo, 0] * self.side_px - 0.5, xy[todo, 1] * self.side_px - 0.5  # pixel-index coordinates
-        chunk = max(1, 1_000_000 // len(u))
-        for start in range(0, len(todo), chunk):
+        result = np.empty((len(xy), tent.shape[1]))
+        spacing_px = spacing * self.side_px
+        px0, py0 = xy[:, 0] * self.side_px - 0.5, xy[:, 1] * self.side_px - 0.5  # pixel-index coordinates
+        chunk = max(1, 1_000_000 // len(dx))
+        for start in range(0, len(xy), chunk):
             block = slice(start, start + chunk)
-            px = px0[block, None] + spacing[block, None] * dx[None]
-            py = py0[block, None] + spacing[block, None] * dy[None]
+            px = px0[block, None] + spacing_px[block, None] * dx[None]
+            py = py0[block, None] + spacing_px[block, None] * dy[None]
             inside = (px >= -0.5) & (px <= width - 0.5) & (py >= -0.5) & (py <= height - 0.5)
             coords = np.stack([py.reshape(-1), px.reshape(-1)])
             lam = ndimage.map_coordinates(self.intensity[..., 0], coords, order=1, mode="nearest").reshape(py.shape)
@@ -204,8 +257,8 @@ class MapFields:
                 zb = ndimage.map_coordinates(self.latent[..., 1], coords, order=1, mode="nearest").reshape(py.shape)
                 centre = latent[block]
                 weight = weight * np.exp(-((za - centre[:, :1]) ** 2 + (zb - centre[:, 1:]) ** 2) / (2 * GUIDE_BANDWIDTH))
-            out[todo[block]] = (weight @ tent) / free * exact
-        return out
+            result[block] = (weight @ tent) / free
+        return result
 
     @functools.cached_property
     def _quadrature(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -223,11 +276,50 @@ class MapFields:
         return u, dx, dy, tent
 
     # --- sampling at points -------------------------------------------------
-    def at(self, xy: np.ndarray) -> dict[str, np.ndarray]:
-        """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target and denominator (n, m)."""
-        return {
+    def at(self, xy: np.ndarray, denominator: bool = True) -> dict[str, np.ndarray]:
+        """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target, dispersion and (optionally) denominator (n, m)."""
+        fields = {
             "spacing": sample_grid(self.spacing, xy, self.side_px)[:, 0],
             "latent": sample_grid(self.latent, xy, self.side_px),
             "target": sample_grid(self.target, xy, self.side_px),
-            "denominator": self.denominator_at(xy),
+            "dispersion": sample_grid(self.dispersion, xy, self.side_px),
         }
+        if denominator:
+            fields["denominator"] = self.denominator_at(xy)
+        return fields
+
+
+class DenominatorTracker:
+    """Denominators and their slopes at a moving pattern, recomputed only for points that moved.
+
+    :meth:`update` recomputes (:meth:`MapFields.denominator_at` with slopes) the
+    points that moved more than :data:`RECOMPUTE_DISTANCE` spacings since their
+    last evaluation and carries the others forward along their slope.
+    """
+
+    def __init__(self, fields: MapFields):
+        self.fields = fields
+        self.anchor: np.ndarray | None = None
+
+    def update(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Denominators (n, m) at xy (n, 2), the indices (K,) of the points near borders and edges and their slopes (K, m, 2)."""
+        xy = np.asarray(xy, np.float64)
+        if self.anchor is None or len(self.anchor) != len(xy):
+            moved = np.arange(len(xy))
+            m = len(self.fields.radii)
+            self.anchor, self.values = xy.copy(), np.empty((len(xy), m))
+            self.sloped, self.slopes = np.zeros(len(xy), bool), np.zeros((len(xy), m, 2), np.float32)
+        else:
+            spacing = sample_grid(self.fields.spacing, xy, self.fields.side_px)[:, 0]
+            moved = np.flatnonzero(np.linalg.norm(xy - self.anchor, axis=1) > RECOMPUTE_DISTANCE * spacing)
+        if len(moved):
+            values, todo, slopes = self.fields.denominator_at(xy[moved], slope=True)
+            self.anchor[moved], self.values[moved] = xy[moved], values
+            self.sloped[moved] = False
+            self.sloped[moved[todo]] = True
+            self.slopes[moved] = 0.0
+            self.slopes[moved[todo]] = slopes
+        sloped = np.flatnonzero(self.sloped)
+        current = self.values.copy()
+        current[sloped] += np.einsum("kjd,kd->kj", self.slopes[sloped], xy[sloped] - self.anchor[sloped])
+        return current, sloped, self.slopes[sloped].astype(np.float64)

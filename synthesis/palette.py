@@ -28,8 +28,9 @@ from synthesis.errors import PatternshopError
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_PALETTE = ASSET_DIR / "palette.npz"
-FORMAT_VERSION = 2  # 2: exemplar_spectrum added
+FORMAT_VERSION = 3  # 2: exemplar_spectrum added; 3: tent-binned PCFs from r = 0, count dispersion table
 LUT_SIZE = 256
+DISPERSION_LUT_SIZE = 64  # the dispersion table varies slowly: 64 x 64 nodes
 POPULATED_RADIUS = 0.03  # latent distance to the nearest exemplar within which a colour counts as populated
 POPULATED_GRID = 64  # cells per side of the grid the populated region is sampled on
 
@@ -60,6 +61,8 @@ class Palette:
         exemplar_pcf: (N, m) their PCFs.
         exemplar_points: (N, P, 2) their point sets on the unit torus.
         exemplar_spectrum: (N, B) the target radial power spectra they realise.
+        exemplar_dispersion: (N, m) their count dispersion (:func:`synthesis.pcf.count_dispersion`).
+        dispersion_lut: (64, 64, m) float32 IDW table of the dispersion, nodes at latent z = (i, j) / 63.
         codes: (N, k) PCA-reduced perceptual features of the exemplars.
         feature_mean, components, block_scale: the feature reduction
             ``code = (features * block_weights - mean) @ components.T``.
@@ -73,6 +76,8 @@ class Palette:
     exemplar_pcf: np.ndarray
     exemplar_points: np.ndarray
     exemplar_spectrum: np.ndarray
+    exemplar_dispersion: np.ndarray
+    dispersion_lut: np.ndarray
     codes: np.ndarray
     feature_mean: np.ndarray
     components: np.ndarray
@@ -82,15 +87,20 @@ class Palette:
 
     # --- I/O --------------------------------------------------------------
     @classmethod
-    def load(cls, path: str | os.PathLike | None = None) -> Palette:
-        """Load a palette asset (default: the shipped one)."""
+    def load(cls, path: str | os.PathLike | None = None, layout_only: bool = False) -> Palette:
+        """Load a palette asset (default: the shipped one).
+
+        ``layout_only=True`` also reads format 2 (its PCF tables are in an older
+        estimator's terms and it has no dispersion: ones stand in), for
+        :mod:`data_gen.palette_table`, which rebuilds the tables from the layout.
+        """
         path = Path(path) if path is not None else DEFAULT_PALETTE
         if not path.is_file():
             raise PatternshopError(f"{path}: palette not found (build it with 'python -m data_gen.palette')")
         try:
             with np.load(path, allow_pickle=False) as data:
                 version = int(data["format_version"])
-                if version != FORMAT_VERSION:
+                if version != FORMAT_VERSION and not (layout_only and version == 2):
                     raise PatternshopError(f"{path}: palette format {version}, this Patternshop reads {FORMAT_VERSION}")
                 return cls(
                     radii=data["radii"].astype(np.float64),
@@ -99,6 +109,10 @@ class Palette:
                     exemplar_pcf=data["exemplar_pcf"].astype(np.float32),
                     exemplar_points=data["exemplar_points"].astype(np.float64) / 65535.0,
                     exemplar_spectrum=data["exemplar_spectrum"].astype(np.float64),
+                    exemplar_dispersion=(data["exemplar_dispersion"].astype(np.float32) if version >= 3
+                                         else np.ones(data["exemplar_pcf"].shape, np.float32)),
+                    dispersion_lut=(data["dispersion_lut"].astype(np.float32) if version >= 3
+                                    else np.ones((DISPERSION_LUT_SIZE, DISPERSION_LUT_SIZE, len(data["radii"])), np.float32)),
                     codes=data["codes"].astype(np.float32),
                     feature_mean=data["feature_mean"].astype(np.float32),
                     components=data["components"].astype(np.float32),
@@ -124,6 +138,8 @@ class Palette:
                     exemplar_pcf=self.exemplar_pcf.astype(np.float32),
                     exemplar_points=np.rint(np.clip(self.exemplar_points, 0, 1) * 65535).astype(np.uint16),
                     exemplar_spectrum=self.exemplar_spectrum.astype(np.float32),
+                    exemplar_dispersion=self.exemplar_dispersion.astype(np.float32),
+                    dispersion_lut=self.dispersion_lut.astype(np.float16),
                     codes=self.codes.astype(np.float32),
                     feature_mean=self.feature_mean.astype(np.float32),
                     components=self.components.astype(np.float16),
@@ -135,14 +151,11 @@ class Palette:
     # --- encoding ---------------------------------------------------------
     def pcf_at_latent(self, z: np.ndarray) -> np.ndarray:
         """PCFs (..., m) for latent coordinates z (..., 2) in [0, 1], bilinear in the LUT."""
-        position = np.clip(np.asarray(z, np.float64), 0.0, 1.0) * (LUT_SIZE - 1)
-        lower = np.minimum(np.floor(position).astype(np.int64), LUT_SIZE - 2)
-        t = (position - lower)[..., None]
-        i, j = lower[..., 0], lower[..., 1]
-        ta, tb = t[..., 0, :], t[..., 1, :]
-        lut = self.lut
-        return ((1 - ta) * (1 - tb) * lut[i, j] + ta * (1 - tb) * lut[i + 1, j]
-                + (1 - ta) * tb * lut[i, j + 1] + ta * tb * lut[i + 1, j + 1]).astype(np.float32)
+        return _bilinear(self.lut, z)
+
+    def dispersion_at_latent(self, z: np.ndarray) -> np.ndarray:
+        """Count dispersions (..., m) for latent coordinates z (..., 2) in [0, 1], bilinear in their table."""
+        return _bilinear(self.dispersion_lut, z)
 
     def pcf(self, a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
         """PCFs (..., m) for chroma a, b (scalars or arrays of one shape) in [-128, 127]."""
@@ -214,6 +227,18 @@ class Palette:
     def nearest_preset(self, a: float, b: float) -> str:
         """Name of the preset whose chroma is nearest to (a, b)."""
         return min(self.preset_ab().items(), key=lambda item: np.hypot(item[1][0] - a, item[1][1] - b))[0]
+
+
+def _bilinear(table: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Bilinear samples (..., m) of a (S, S, m) table whose nodes sit at latent (i, j) / (S - 1), at z (..., 2)."""
+    size = table.shape[0]
+    position = np.clip(np.asarray(z, np.float64), 0.0, 1.0) * (size - 1)
+    lower = np.minimum(np.floor(position).astype(np.int64), size - 2)
+    t = (position - lower)[..., None]
+    i, j = lower[..., 0], lower[..., 1]
+    ta, tb = t[..., 0, :], t[..., 1, :]
+    return ((1 - ta) * (1 - tb) * table[i, j] + ta * (1 - tb) * table[i + 1, j]
+            + (1 - ta) * tb * table[i, j + 1] + ta * tb * table[i + 1, j + 1]).astype(np.float32)
 
 
 @functools.lru_cache(maxsize=4)

@@ -143,3 +143,45 @@ def stationary_pcf(
         counts += tent_counts(distance[:, 1:] / spacing, None, radii)  # column 0: the centre itself
     intensity = (n - 1) / (w * h)
     return counts / (len(centres) * intensity * spacing**2 * uniform_expectation(radii))
+
+
+def count_dispersion(points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = True,
+                     radii: np.ndarray | None = None) -> np.ndarray:
+    """(m,) dispersion of a stationary pattern's per-point cumulative counts: variance / (mean + 1), per radius.
+
+    The count around a point of neighbours closer than each radius (tent
+    binned, cumulated) varies from point to point; this is its variance
+    relative to a Poisson pattern's (whose variance equals the mean; the +1
+    keeps hard-core radii, where both are 0, finite). About 1 for Poisson,
+    below 1 for regular patterns, above for clustered ones. Points (n, 2) in
+    ``[0, w] x [0, h]``; borders as in :func:`stationary_pcf`.
+    """
+    radii = pcf_radii() if radii is None else radii
+    points = np.asarray(points, np.float64)
+    n = len(points)
+    w, h = domain
+    spacing = r_max(n, w * h)
+    reach = neighbour_cutoff(radii) * spacing
+    if periodic:
+        wrapped = np.mod(points, [w, h])
+        wrapped[wrapped >= [w, h]] = 0.0
+        tree, centres = cKDTree(wrapped, boxsize=[w, h]), wrapped
+    else:
+        tree = cKDTree(points)
+        centres = points[np.all((points >= reach) & (points <= np.array([w, h]) - reach), axis=1)]
+        if len(centres) < 10:
+            raise PatternshopError(f"only {len(centres)} of {n} points lie far enough from the border to measure dispersion")
+    counts = []
+    width, m = float(radii[1] - radii[0]), len(radii)
+    for start in range(0, len(centres), CENTRE_CHUNK):
+        distance, _ = neighbours_within(tree, centres[start:start + CENTRE_CHUNK], reach)
+        t = distance[:, 1:] / (spacing * width)
+        lower = np.floor(np.where(np.isfinite(t), t, m)).astype(np.int64)
+        frac = np.where(np.isfinite(t), t - lower, 0.0)
+        per_bin = np.zeros((len(t), m + 2))
+        rows = np.broadcast_to(np.arange(len(t))[:, None], t.shape)
+        np.add.at(per_bin, (rows, np.minimum(lower, m + 1)), np.where(lower < m, 1 - frac, 0.0))
+        np.add.at(per_bin, (rows, np.minimum(lower + 1, m + 1)), np.where(lower + 1 < m, frac, 0.0))
+        counts.append(np.cumsum(per_bin[:, :m], axis=1))
+    counts = np.concatenate(counts)
+    return counts.var(axis=0) / (counts.mean(axis=0) + 1.0)

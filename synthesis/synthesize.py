@@ -6,13 +6,19 @@ range: blue, step, jitter), independent where it is not (white, green,
 clustered), mixed in proportion in between; so a blue region starts with no
 holes and a white one starts as a true Poisson sample.
 
-**Optimisation.** Adam on the aggregated objective of :mod:`synthesis.edgepcf`
-(fused numba kernels), every point a centre at every iteration. Steps are
-per point and measured in units of the local spacing r_max(x), so dense and
-sparse regions converge alike; they decay from ``step`` to ``final_step``
-along a cosine. Pair lists and the fields at the points are refreshed every
-``refresh`` iterations. Points leaving the domain are reflected back in (a
-border is a mirror, not a wall that collects points).
+**Optimisation.** Momentum descent on the window objective of
+:mod:`synthesis.edgepcf` (fused numba kernels), every point a centre at every
+iteration: Adam's first moment per point, its second moment shared by all
+points, so a point with a small, consistent gradient (a white-noise region, a
+slight bias) moves little instead of a full step. Steps are per point and
+measured in units of the local spacing r_max(x), so dense and sparse regions
+converge alike; they decay from ``step`` to ``final_step`` along a cosine, are
+``free_step`` times longer where the target is not regular (clusters must
+form from an independent start) and shrink to 0 where the target is white
+noise (the independent start already is a true sample). Pair lists, windows
+and the fields at the points are refreshed every ``refresh`` iterations.
+Points leaving the domain are mirrored back in, momentum reversed (a border is
+a mirror, not a wall that collects points).
 
 One schedule, ``fast`` (the paper's 5,000-iteration schedule of jittered
 Monte-Carlo centres measured worse at 12x the cost and is gone).
@@ -28,7 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from synthesis.errors import PatternshopError
-from synthesis.fields import MapFields
+from synthesis.fields import DenominatorTracker, MapFields
 from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
@@ -45,8 +51,7 @@ class Schedule:
     free_step: float  # step factor where the target is not regular (Poisson, clustered): points travel further
 
 
-import os as _os
-SCHEDULES = {"fast": Schedule("fast", iterations=int(_os.environ.get("PS_IT", 250)), refresh=10, step=float(_os.environ.get("PS_STEP", 0.05)), final_step=float(_os.environ.get("PS_FINAL", 0.002)), free_step=float(_os.environ.get("PS_FREE", 3.0)))}
+SCHEDULES = {"fast": Schedule("fast", iterations=250, refresh=10, step=0.05, final_step=0.002, free_step=3.0)}
 
 
 @dataclass
@@ -89,8 +94,8 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: Ma
     if fields is None:
         return independent
     stratified = StratifiedSampler(density, side_px, domain, n).draw(n, rng)
-    regular_s = regularity(fields.at(stratified)["target"], fields.radii)
-    regular_i = regularity(fields.at(independent)["target"], fields.radii)
+    regular_s = regularity(fields.at(stratified, denominator=False)["target"], fields.radii)
+    regular_i = regularity(fields.at(independent, denominator=False)["target"], fields.radii)
     chosen = np.concatenate([stratified[rng.random(n) < regular_s], independent[rng.random(n) >= regular_i]])
     if len(chosen) > n:
         return chosen[np.sort(rng.choice(len(chosen), n, replace=False))]
@@ -100,13 +105,14 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: Ma
 
 
 def reflect(xy: np.ndarray, domain: tuple[float, float]) -> np.ndarray:
-    """Positions (n, 2) mirrored back into ``[0, w) x [0, h)`` at the border (in place, also returned)."""
+    """Mirror positions (n, 2) back into ``[0, w) x [0, h)`` at the border, in place; returns the (n, 2) mask of mirrored coordinates."""
     size = np.asarray(domain, np.float64)
+    below = xy < 0.0
     np.abs(xy, out=xy)
     beyond = xy > size
     xy[beyond] = (2 * np.broadcast_to(size, xy.shape))[beyond] - xy[beyond]
     np.clip(xy, 0.0, size * (1 - 1e-9), out=xy)
-    return xy
+    return below | beyond
 
 
 def synthesize(
@@ -159,8 +165,8 @@ def synthesize(
     palette = palette or load_palette()
     fields = MapFields.build(lab_map, n, palette, guide=guide)
     xy = initial_points(lab_map, n, rng, fields)
-    windows = WindowSampler(fields)
-    first, second = np.zeros_like(xy), np.zeros_like(xy)
+    windows, denominators = WindowSampler(fields), DenominatorTracker(fields)
+    first, second = np.zeros_like(xy), 0.0
     beta1, beta2 = 0.9, 0.999
     setup = time.perf_counter() - start
     losses: list[float] = []
@@ -168,20 +174,19 @@ def synthesize(
     bar = tqdm(total=plan.iterations, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
     for step in range(plan.iterations):
         if objective is None or step % plan.refresh == 0:
-            hood = find_neighbourhoods(fields, xy, windows.draw(rng))
+            hood = find_neighbourhoods(fields, xy, windows.draw(rng), denominators)
             objective = FastObjective(hood)
-            step_length = (hood.spacing * (1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)))[:, None]
+            step_length = (hood.spacing * hood.structure * (1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)))[:, None]
         loss, gradient = objective(xy)
         losses.append(loss)
         first *= beta1
         first += (1 - beta1) * gradient
-        second *= beta2
-        second += (1 - beta2) * gradient * gradient
+        second = beta2 * second + (1 - beta2) * float(np.mean(gradient * gradient))
         fraction = step / max(plan.iterations - 1, 1)
         rate = plan.final_step + 0.5 * (plan.step - plan.final_step) * (1 + math.cos(math.pi * fraction))
         update = (first / (1 - beta1 ** (step + 1))) / (np.sqrt(second / (1 - beta2 ** (step + 1))) + 1e-30)
         xy -= rate * step_length * update
-        reflect(xy, fields.domain)
+        first[reflect(xy, fields.domain)] *= -1.0  # a mirror reverses the momentum too
         if on_iteration is not None:
             on_iteration(step, xy)
         bar.set_postfix(loss=f"{loss:.4g}", refresh=False)
