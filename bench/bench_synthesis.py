@@ -1,4 +1,7 @@
-"""Synthesis benchmark (issue 4): estimator bias, realisability, sharp edges, density, schedules, scaling.
+"""Synthesis benchmark (issue 4, updated for synthesis v2): estimator bias, realisability, sharp edges, density, scaling.
+
+The statistics here use the project's own estimator; ``bench_fidelity.py``
+checks the outputs with statistics written independently of it.
 
 Run with ``make bench`` (or ``python bench/bench_synthesis.py [--quick]``);
 results go to ``out/bench/synthesis.json``. Every figure is measured in this
@@ -14,7 +17,6 @@ import sys
 import time
 
 import numpy as np
-import torch
 
 from common import save_results  # bench/ is on sys.path when run as a script
 
@@ -46,9 +48,9 @@ def unbiasedness(realisations: int) -> dict:
     margin = 2 * r_max(n, w * h)
     groups: dict[str, list] = {"interior": [], "border": [], "edge": []}
     for seed in range(realisations):
-        xy = torch.from_numpy(initial_points(lab_map, n, np.random.default_rng(seed)).astype(np.float32))
-        g = estimate(fields, xy, find_neighbourhoods(fields, xy, torch.arange(n))).numpy()
-        x, y = xy[:, 0].numpy(), xy[:, 1].numpy()
+        xy = initial_points(lab_map, n, np.random.default_rng(seed))
+        g = estimate(xy, find_neighbourhoods(fields, xy), fields.denominator_at(xy))[:, 10:]  # radii >= 0.5 r_max: enough pairs
+        x, y = xy[:, 0], xy[:, 1]
         border = (x < margin) | (y < margin) | (x > w - margin) | (y > h - margin)
         edge = np.abs(x - w / 2) < margin
         groups["border"].append(g[border & ~edge])
@@ -139,24 +141,6 @@ def density(example: str) -> dict:
             "with_dot_sizes": density_fidelity(dot_sizes(result.points, lab_map), lab_map)}
 
 
-def schedules() -> dict:
-    palette = load_palette()
-    presets = palette.preset_ab()
-    maps = {"constant_blue": LabMap(np.broadcast_to(np.array([50.0, *presets["blue"]], np.float32), (64, 64, 3))),
-            "split_blue_red": split_map((70.0, *presets["blue"]), (50.0, *presets["red"]))}
-    out = {}
-    for name, lab_map in maps.items():
-        row = {}
-        for schedule in ("fast", "paper"):
-            result = synthesize(lab_map, n=2000, palette=palette, schedule=schedule, seed=2)
-            error, _ = local_errors(lab_map, result.points.xy, 2000)
-            row[schedule] = {"seconds": round(result.seconds, 2), "iterations": result.iterations,
-                             "final_loss": round(result.final_loss, 5), "local_pcf_error": round(float(error.mean()), 4)}
-        row["paper_over_fast_time"] = round(row["paper"]["seconds"] / row["fast"]["seconds"], 1)
-        out[name] = row
-    return out
-
-
 SCALING_CODE = """
 import json, resource, sys, time
 from synthesis.mapio import read_map
@@ -185,14 +169,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--quick", action="store_true", help="fewer cells and sizes (a smoke run)")
     args = parser.parse_args()
-    torch.set_num_threads(2)
     results = {}
     for name, run in [
         ("unbiasedness", lambda: unbiasedness(2 if args.quick else 5)),
         ("realisability", lambda: realisability(6 if args.quick else 50)),
         ("sharp_edges", sharp_edges),
         ("density_fidelity", lambda: density("examples/logo.tif")),
-        ("schedules", schedules),
         ("scaling", lambda: scaling([1000, 10000] if args.quick else [1000, 10000, 30000, 100000])),
     ]:
         start = time.perf_counter()

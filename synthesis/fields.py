@@ -30,10 +30,10 @@ from synthesis.pcf import neighbour_cutoff, pcf_radii, r_max, uniform_expectatio
 GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dimension
 DENSITY_FLOOR = 1e-3  # relative to the mean density: keeps spacings finite in white areas
 FIELD_MAX_SIDE = 256  # fields are computed on the map resampled to at most this many pixels per side
-RING_STEP = 0.1  # quadrature: radial step between rings (at least one bin), in units of the local spacing
+RING_STEP = 0.05  # quadrature: radial step between rings (at least one bin), in units of the local spacing
 RECOMPUTE_DISTANCE = 0.1  # a point's denominator is recomputed once it moved this many spacings (else linearised)
 SLOPE_STEP = 0.25  # finite-difference step of the denominator's gradient, in units of the local spacing
-RING_SPACING = 0.5  # quadrature: arc length between nodes on a ring, in units of the local spacing
+RING_SPACING = 0.35  # quadrature: arc length between nodes on a ring, in units of the local spacing
 UNIFORM_TOLERANCE = (0.02, 0.005)  # log-intensity and latent spreads below which a neighbourhood counts as uniform
 # (the denominator then differs from the uniform value by well under 1 %: a linear trend cancels around the point)
 POISSON_PAIR_SCALE = 2.0 / math.sqrt(3.0)  # intensity * r_max^2, the same at every density

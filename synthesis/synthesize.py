@@ -51,7 +51,7 @@ class Schedule:
     free_step: float  # step factor where the target is not regular (Poisson, clustered): points travel further
 
 
-SCHEDULES = {"fast": Schedule("fast", iterations=250, refresh=10, step=0.05, final_step=0.002, free_step=3.0)}
+SCHEDULES = {"fast": Schedule("fast", iterations=250, refresh=10, step=0.05, final_step=0.01, free_step=3.0)}
 
 
 @dataclass

@@ -45,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     synthesis = convert.add_argument_group("maps to points (--resynthesize), as in 'patternshop synthesize'")
     synthesis.add_argument("--resynthesize", action="store_true", help="synthesise points for maps instead of inferring maps")
     synthesis.add_argument("--points", type=int, metavar="N", help="points per map (default: from the ink)")
-    synthesis.add_argument("--schedule", choices=("fast", "paper"), default="fast", help="optimisation schedule (default fast)")
+    synthesis.add_argument("--schedule", choices=("fast",), default="fast", help="optimisation schedule (only fast)")
     synthesis.add_argument("--iterations", type=int, metavar="K", help="override the schedule's iteration count")
     synthesis.add_argument("--seed", type=int, default=0, help="random seed, the same for every map (default 0)")
     synthesis.add_argument("--palette", metavar="FILE", help="palette asset (default: the shipped one)")
