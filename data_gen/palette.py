@@ -21,10 +21,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_gen.corpus import CorpusConfig, SpectrumRanges, build_corpus
 from data_gen.provenance import git_commit, machine, run_config_command, utc_now, versions
-from data_gen.embedding import idw_encode, kde_locality, l1_distances, mds_layout, orient, stress1, trustworthiness
+from data_gen.embedding import l1_distances, mds_layout, orient, stress1, trustworthiness
+from data_gen.palette_table import with_preset_exemplars
 from synthesis.atomic import atomic_write_text
 from synthesis.features import block_slices, scale_blocks
-from synthesis.palette import LUT_SIZE, Palette, hue_chroma, latent_to_ab
+from synthesis.palette import Palette, hue_chroma, latent_to_ab
 from synthesis.pcf import pcf_radii
 
 def corpus_config(cfg: DictConfig) -> CorpusConfig:
@@ -98,24 +99,22 @@ def build(cfg: DictConfig) -> dict:
     z, transform = orient(layout, anchors, hues)
     lap("presets and orientation")
 
-    radii = pcf_radii()
-    grid = np.stack(np.meshgrid(np.arange(LUT_SIZE), np.arange(LUT_SIZE), indexing="ij"), axis=-1).reshape(-1, 2) / (LUT_SIZE - 1)
-    low, high = cfg.embedding.locality
-    power = kde_locality(grid, z, cfg.embedding.kde_window, low, high)
-    lut = idw_encode(grid, z, corpus["pcf"], power).reshape(LUT_SIZE, LUT_SIZE, -1)
-    lap("look-up table")
-
     presets = {}
     for name, index in preset_exemplar.items():
         a, b = latent_to_ab(z[index])
         hue, chroma = hue_chroma(a, b)
         presets[name] = {"a": round(float(a), 2), "b": round(float(b), 2), "hue": round(hue, 1), "chroma": round(chroma, 1),
                          "exemplar": index, "generator": f"synthesis.generators.{name}"}
-    palette = Palette(
-        radii=radii, lut=lut.astype(np.float32), exemplar_z=z, exemplar_pcf=corpus["pcf"].astype(np.float32),
-        exemplar_points=corpus["points"], exemplar_spectrum=corpus["target"], codes=codes, feature_mean=mean, components=components,
+    unfinished = Palette(
+        radii=pcf_radii(), lut=np.empty((0, 0, 0), np.float32), exemplar_z=z, exemplar_pcf=corpus["pcf"].astype(np.float32),
+        exemplar_points=corpus["points"], exemplar_spectrum=corpus["target"], exemplar_dispersion=np.empty((0, 0), np.float32),
+        dispersion_lut=np.empty((0, 0, 0), np.float32), codes=codes, feature_mean=mean, components=components,
         block_scale=weights, presets=presets, extractor=extractor.describe(),
     )
+    # PCFs and dispersions measured with the current estimator, presets made exemplars of their generators, tables
+    palette, _ = with_preset_exemplars(unfinished, config.points, lambda s: print(s, file=sys.stderr, flush=True))
+    z, presets = palette.exemplar_z, palette.presets
+    lap("look-up table")
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     palette.save(output)

@@ -36,7 +36,7 @@ def small(tmp_path_factory: pytest.TempPathFactory) -> tuple[Palette, dict, Path
 def test_small_build_is_a_valid_asset(small):
     palette, record, _ = small
     n, m = palette.exemplar_z.shape[0], len(palette.radii)
-    assert (n, m) == (40, 20)
+    assert (n, m) == (40, 52)
     assert palette.lut.shape == (LUT_SIZE, LUT_SIZE, m) and np.all(np.isfinite(palette.lut))
     assert np.all((palette.exemplar_z >= 0) & (palette.exemplar_z <= 1))
     np.testing.assert_allclose(palette.exemplar_z.min(axis=0), 0.0, atol=1e-6)  # normalised to fill [0, 1]^2
@@ -69,7 +69,7 @@ def test_pcf_accepts_arrays_and_8bit_values(small):
     a = np.array([[-128, 0], [64, 127]])
     b = np.array([[0, -30], [127, -128]])
     pcf = palette.pcf(a, b)
-    assert pcf.shape == (2, 2, 20)
+    assert pcf.shape == (2, 2, 52)
     np.testing.assert_allclose(pcf[1, 0], palette.lut[64 + 128, 127 + 128], rtol=1e-6)  # 8-bit = table entry
     halfway = palette.pcf(0.5, -30.0)
     np.testing.assert_allclose(halfway, (palette.lut[128, 98] + palette.lut[129, 98]) / 2, rtol=1e-5)
@@ -132,8 +132,8 @@ shipped = pytest.mark.skipif(not DEFAULT_PALETTE.exists(), reason="no shipped pa
 def test_shipped_asset_shapes_ranges_and_provenance():
     palette = Palette.load()
     assert DEFAULT_PALETTE.stat().st_size <= 20 * 2**20
-    assert palette.lut.shape == (256, 256, 20) and np.all(np.isfinite(palette.lut))
-    assert palette.lut.min() >= 0.0 and 0.5 < palette.lut.mean() < 1.5
+    assert palette.lut.shape == (256, 256, 52) and np.all(np.isfinite(palette.lut))
+    assert palette.lut.min() >= 0.0 and 0.5 < palette.lut[..., palette.radii >= 0.5].mean() < 1.5  # the first radii hold few pairs
     assert palette.exemplar_z.shape == (1000, 2) and palette.exemplar_points.shape == (1000, 1024, 2)
     assert {"white", "blue", "green", "red", "step"} <= set(palette.presets)
     record = json.loads(DEFAULT_PALETTE.with_suffix(".json").read_text())
@@ -176,7 +176,7 @@ def test_cli_palette_list_picture_and_analyze(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(["analyze", str(points), "--json", "--plot", str(tmp_path / "plot.png")]) == 0
     result = json.loads(capsys.readouterr().out)
-    assert {"a", "b", "nearest_preset", "r", "pcf"} <= set(result) and len(result["pcf"]) == 20
+    assert {"a", "b", "nearest_preset", "r", "pcf"} <= set(result) and len(result["pcf"]) == 52
     assert result["nearest_preset"] == "red" and result["pcf"][0] > 2.0  # clustered: many close pairs
     assert (tmp_path / "plot.png").stat().st_size > 0
 
