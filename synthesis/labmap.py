@@ -10,15 +10,15 @@ Conventions (SPEC §3):
   the top-left pixel corner, y pointing down. Pixel (row i, column j) covers
   ``[j, j+1] x [i, i+1]`` times ``1 / max(H, W)``.
 
-Colour conversions use colour-science with the D65 white point, which is what
-ImageMagick uses for CIELAB TIFFs.
+Colour conversions are the CIE 1976 L*a*b* and IEC 61966-2-1 sRGB formulas with
+the D65 white point (what ImageMagick uses for CIELAB TIFFs), written out in
+numpy; they agree with colour-science to ~1e-6 (tests/test_mapio.py compares).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import colour
 import numpy as np
 
 from synthesis.errors import MapFormatError
@@ -26,7 +26,39 @@ from synthesis.errors import MapFormatError
 L_RANGE = (0.0, 100.0)
 AB_RANGE = (-128.0, 127.0)
 POINTS_PER_INK = 50_000  # points of a fully dark map: n = POINTS_PER_INK * mean density (paper's training data)
-_D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+D65_XYZ = np.array([0.3127 / 0.3290, 1.0, (1.0 - 0.3127 - 0.3290) / 0.3290])  # white point, CIE 1931 2 deg, Y = 1
+SRGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])  # IEC 61966-2-1
+XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+_LAB_EPSILON = (24.0 / 116.0) ** 3  # CIE 1976: below this Y/Yn the cube root turns linear
+_LAB_SLOPE = 841.0 / 108.0
+
+
+def srgb_to_linear(srgb: np.ndarray) -> np.ndarray:
+    """Decode sRGB values in [0, 1] to linear light (IEC 61966-2-1), float64, same shape."""
+    srgb = np.asarray(srgb, dtype=np.float64)
+    return np.where(srgb <= 0.04045, srgb / 12.92, ((np.maximum(srgb, 0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
+    """Encode linear light to sRGB values (IEC 61966-2-1), float64, same shape; negative input stays linear."""
+    linear = np.asarray(linear, dtype=np.float64)
+    return np.where(linear <= 0.0031308, linear * 12.92, 1.055 * np.maximum(linear, 0.0031308) ** (1.0 / 2.4) - 0.055)
+
+
+def xyz_to_lab(xyz: np.ndarray) -> np.ndarray:
+    """CIE XYZ (..., 3) with white Y = 1 -> CIELAB (..., 3) (L in [0, 100]), D65."""
+    ratio = np.asarray(xyz, dtype=np.float64) / D65_XYZ
+    f = np.where(ratio > _LAB_EPSILON, np.cbrt(ratio), _LAB_SLOPE * ratio + 16.0 / 116.0)
+    return np.stack([116.0 * f[..., 1] - 16.0, 500.0 * (f[..., 0] - f[..., 1]), 200.0 * (f[..., 1] - f[..., 2])], axis=-1)
+
+
+def lab_to_xyz(lab: np.ndarray) -> np.ndarray:
+    """CIELAB (..., 3) -> CIE XYZ (..., 3) with white Y = 1, D65."""
+    lab = np.asarray(lab, dtype=np.float64)
+    f_y = (lab[..., 0] + 16.0) / 116.0
+    f = np.stack([f_y + lab[..., 1] / 500.0, f_y, f_y - lab[..., 2] / 200.0], axis=-1)
+    ratio = np.where(f > 24.0 / 116.0, f**3, (f - 16.0 / 116.0) / _LAB_SLOPE)
+    return ratio * D65_XYZ
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,8 +105,7 @@ class LabMap:
     @classmethod
     def from_srgb(cls, rgb: np.ndarray) -> LabMap:
         """Convert an sRGB image (H, W, 3) with values in [0, 1] (D65) to a map."""
-        xyz = colour.RGB_to_XYZ(np.asarray(rgb, dtype=np.float64), "sRGB", apply_cctf_decoding=True)
-        return cls(colour.XYZ_to_Lab(xyz, _D65))
+        return cls(xyz_to_lab(srgb_to_linear(rgb) @ SRGB_TO_XYZ.T))
 
     # --- views ------------------------------------------------------------
     @property
@@ -111,9 +142,7 @@ class LabMap:
 
     def to_srgb(self) -> np.ndarray:
         """(H, W, 3) float64 sRGB in [0, 1] (D65), out-of-gamut colours clipped."""
-        xyz = colour.Lab_to_XYZ(self.lab.astype(np.float64), _D65)
-        rgb = colour.XYZ_to_RGB(xyz, "sRGB", apply_cctf_encoding=True)
-        return np.clip(rgb, 0.0, 1.0)
+        return np.clip(linear_to_srgb(lab_to_xyz(self.lab) @ XYZ_TO_SRGB.T), 0.0, 1.0)
 
     def to_srgb8(self) -> np.ndarray:
         """(H, W, 3) uint8 sRGB of :meth:`to_srgb`, for previews."""
