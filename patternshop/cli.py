@@ -22,7 +22,8 @@ from collections.abc import Sequence
 from patternshop import __version__
 
 COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette", "patternshop.commands.synthesize",
-                   "patternshop.commands.network", "patternshop.commands.convert", "patternshop.commands.edit")
+                   "patternshop.commands.network", "patternshop.commands.convert", "patternshop.commands.edit",
+                   "patternshop.commands.from_image")
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130
