@@ -47,7 +47,7 @@ from scipy.spatial import cKDTree
 from synthesis.fields import DenominatorTracker, MapFields, guide_similarity
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
-from synthesis.pcf import neighbour_cutoff, neighbours_within
+from synthesis.pcf import neighbour_cutoff, neighbour_lists
 from synthesis.stratified import StratifiedSampler
 
 CUMULATIVE_VARIANCE = (1.0, 5.0)  # Var / (sum a^2 K) of a window's cumulative count at radius rho: 1 + 5 rho (Poisson, measured)
@@ -191,13 +191,6 @@ def window_squares(values: np.ndarray, windows: Windows) -> np.ndarray:
     return window_sums(values, windows.offsets, windows.members, windows.weights**2)
 
 
-def _csr(index: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Row offsets (R + 1,) and flat entries of a padded (R, K) index array where ``valid``."""
-    offsets = np.zeros(len(index) + 1, np.int64)
-    np.cumsum(valid.sum(axis=1), out=offsets[1:])
-    return offsets, index[valid].astype(np.int32)
-
-
 def _transpose(entries: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     """Entry order sorted by target (M,) and offsets (count + 1,) per target of a flat list of targets."""
     order = np.argsort(entries, kind="stable")
@@ -223,11 +216,10 @@ def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.nd
     n = tree.n
     at = fields.at(centres, denominator=False)
     reach = scale.radius * at["spacing"].astype(np.float64)
-    distance, index = neighbours_within(tree, centres, reach)
-    valid = index < n
-    offsets, members = _csr(index, valid)
+    offsets, members, distance = neighbour_lists(tree, centres, reach)
+    members = members.astype(np.int32)
     owners = _owners(offsets)
-    weights = window_taper(distance[valid] / reach[owners])
+    weights = window_taper(distance / reach[owners])
     if fields.guide:
         weights = weights * guide_similarity(latent[members], at["latent"].astype(np.float64)[owners])
     by_member, member_offsets = _transpose(members, n)
@@ -260,8 +252,12 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     spacing = at["spacing"].astype(np.float64)
     latent = at["latent"].astype(np.float64)
     tree = cKDTree(xy)
-    _, index = neighbours_within(tree, xy, neighbour_cutoff(fields.radii) * spacing)
-    offsets, neighbours = _csr(index, (index < n) & (index != np.arange(n)[:, None]))
+    offsets, neighbours, _ = neighbour_lists(tree, xy, neighbour_cutoff(fields.radii) * spacing)
+    owners = _owners(offsets)
+    others = neighbours != owners  # drop each point itself
+    offsets = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(owners[others], minlength=n), out=offsets[1:])
+    neighbours = neighbours[others].astype(np.int32)
     centres = _owners(offsets)
     guide = guide_similarity(latent[neighbours], latent[centres]) if fields.guide else np.ones(len(neighbours))
     target = at["target"].astype(np.float64)

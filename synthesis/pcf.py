@@ -185,3 +185,40 @@ def count_dispersion(points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0
         counts.append(np.cumsum(per_bin[:, :m], axis=1))
     counts = np.concatenate(counts)
     return counts.var(axis=0) / (counts.mean(axis=0) + 1.0)
+
+
+def neighbour_lists(tree: cKDTree, centres: np.ndarray, reach: np.ndarray | float,
+                    k: int = FIRST_NEIGHBOURS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every tree point within ``reach`` (scalar or (C,)) of each centre (C, 2), as compact lists (the centre itself included).
+
+    Returns offsets (C + 1,) int64 (the entries of centre c are ``offsets[c]:offsets[c + 1]``),
+    indices (E,) int64 and distances (E,). One k-NN query serves most centres;
+    those whose k-th neighbour is still within reach (dense clusters, or a
+    light area whose reach covers a dark one) get a radius query of their own,
+    so memory follows the actual pair count.
+    """
+    centres = np.asarray(centres, np.float64)
+    reach = np.broadcast_to(np.asarray(reach, np.float64), (len(centres),))
+    k = min(k, tree.n)
+    distance, index = tree.query(centres, k=k)
+    distance, index = distance.reshape(len(centres), k), index.reshape(len(centres), k)
+    keep = distance <= reach[:, None]
+    short = keep[:, -1] & (k < tree.n)  # may have more neighbours than k
+    keep[short] = False
+    counts = keep.sum(axis=1)
+    extra: list[np.ndarray] = []
+    if short.any():
+        extra = [np.asarray(found, np.int64) for found in tree.query_ball_point(centres[short], reach[short])]
+        counts[short] = [len(found) for found in extra]
+    offsets = np.zeros(len(centres) + 1, np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    out_index = np.empty(offsets[-1], np.int64)
+    out_distance = np.empty(offsets[-1])
+    from_query = np.repeat(~short, counts)
+    out_index[from_query], out_distance[from_query] = index[keep], distance[keep]
+    if extra:
+        found = np.concatenate(extra)
+        owner = np.repeat(np.flatnonzero(short), counts[short])
+        out_index[~from_query] = found
+        out_distance[~from_query] = np.linalg.norm(tree.data[found] - centres[owner], axis=1)
+    return offsets, out_index, out_distance
