@@ -20,6 +20,7 @@ import warnings
 from collections.abc import Sequence
 
 from patternshop import __version__
+from patternshop.commands import add_max_memory_option, apply_threads
 
 COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette", "patternshop.commands.synthesize",
                    "patternshop.commands.network", "patternshop.commands.convert", "patternshop.commands.edit",
@@ -54,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The full parser with every registered subcommand."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks on errors")
+    add_max_memory_option(common)
     parser = OneLineErrorParser(
         prog="patternshop",
         description=DESCRIPTION,
@@ -89,6 +91,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.simplefilter("always", PatternshopWarning)
         if not args.debug:
             warnings.showwarning = _show_warning
+        if "threads" in args:
+            apply_threads(args.threads)
         try:
             return int(args.func(args) or 0)
         except BrokenPipeError:  # e.g. `patternshop analyze --json x | head`: the reader left

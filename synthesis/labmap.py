@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from synthesis.conventions import POINTS_PER_INK  # noqa: F401 - re-exported: the map convention n = POINTS_PER_INK * mean density
 from synthesis.errors import MapFormatError
 
 L_RANGE = (0.0, 100.0)
 AB_RANGE = (-128.0, 127.0)
-POINTS_PER_INK = 50_000  # points of a fully dark map: n = POINTS_PER_INK * mean density (paper's training data)
 D65_XYZ = np.array([0.3127 / 0.3290, 1.0, (1.0 - 0.3127 - 0.3290) / 0.3290])  # white point, CIE 1931 2 deg, Y = 1
 SRGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])  # IEC 61966-2-1
 XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])

@@ -16,8 +16,11 @@ Stored values (SPEC §3):
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +69,54 @@ def is_channel_path(path: PathLike) -> bool:
 
 
 # --- reading -----------------------------------------------------------------
+@contextlib.contextmanager
+def _quiet_tifffile() -> Iterator[None]:
+    """Keep tifffile's log lines about broken files off stderr: the reader's exception says what is wrong."""
+    logger = logging.getLogger("tifffile")
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        yield
+    finally:
+        logger.disabled = disabled
+
+
+def _reason(exc: BaseException) -> str:
+    """A library exception as a reason: its message, or "truncated or corrupt" when it has no words (``IndexError: 0``)."""
+    text = " ".join(str(exc).split())
+    return text if any(c.isalpha() for c in text) else "truncated or corrupt"
+
+
+def map_size(path: PathLike) -> tuple[int, int]:
+    """(width, height) in pixels of a map file, read from its header (no pixels decoded).
+
+    Raises:
+        MapFormatError: the file is missing, unreadable or of an unsupported kind.
+    """
+    path = Path(path)
+    if is_channel_path(path):
+        path = channel_paths(path)[0]
+    if not path.is_file():
+        raise MapFormatError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix in TIFF_SUFFIXES:
+        try:
+            with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
+                page = tif.pages.first
+                return int(page.imagewidth), int(page.imagelength)
+        except (tifffile.TiffFileError, ValueError, OSError, KeyError, IndexError, RuntimeError) as exc:
+            raise MapFormatError(f"{path}: not a readable TIFF ({_reason(exc)})") from exc
+    if suffix in SRGB_SUFFIXES:
+        try:
+            with Image.open(path) as image:
+                return image.size
+        except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+            raise MapFormatError(f"{path}: not a readable image ({_reason(exc)})") from exc
+    raise MapFormatError(
+        f"{path}: unsupported map format '{path.suffix}' "
+        "(use a CIELAB .tif, channel PNGs NAME.L.png/.a.png/.b.png, or an sRGB .png/.jpg)"
+    )
+
+
 def read_map(path: PathLike) -> LabMap:
     """Read a map from a CIELAB/ICCLAB/RGB TIFF, a channel-PNG triplet or an sRGB image.
 
@@ -90,7 +141,7 @@ def read_map(path: PathLike) -> LabMap:
 
 def _read_tiff(path: Path) -> LabMap:
     try:
-        with tifffile.TiffFile(path) as tif:
+        with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
             page = tif.pages.first
             photometric = int(page.photometric)
             bits = page.bitspersample
@@ -99,7 +150,7 @@ def _read_tiff(path: Path) -> LabMap:
             axes = page.axes
     except (tifffile.TiffFileError, ValueError, OSError, KeyError, IndexError, RuntimeError) as exc:
         # RuntimeError: imagecodecs' decoder errors (e.g. a truncated deflate stream)
-        raise MapFormatError(f"{path}: not a readable TIFF ({exc})") from exc
+        raise MapFormatError(f"{path}: not a readable TIFF ({_reason(exc)})") from exc
     pixels = _to_height_width_samples(pixels, axes, path)
     if photometric in (_PHOTOMETRIC_CIELAB, _PHOTOMETRIC_ICCLAB):
         if sampleformat == 3 or bits not in (8, 16):
@@ -163,8 +214,8 @@ def _open_image(path: Path) -> Image.Image:
     try:
         image = Image.open(path)
         image.load()
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise MapFormatError(f"{path}: not a readable image ({exc})") from exc
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+        raise MapFormatError(f"{path}: not a readable image ({_reason(exc)})") from exc
     return image
 
 

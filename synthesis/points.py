@@ -28,6 +28,8 @@ NPY_SUFFIX = ".npy"
 _DOMAIN_COMMENT = re.compile(r"^\s*domain\s*[:=]\s*(\S+)[\s,]+(\S+)\s*$", re.IGNORECASE)
 _SEPARATORS = re.compile(r"\s*,\s*|\s+")
 _HEADER_NAMES = {"x", "y", "r", "radius"}
+_NPY_MAGIC = b"\x93NUMPY"
+_ZIP_MAGIC = b"PK\x03\x04"  # an .npz archive: np.load opens it, and the caller says it is not a single array
 
 PathLike = str | os.PathLike
 
@@ -217,6 +219,10 @@ def _is_number(token: str) -> bool:
 
 
 def _parse_npy(path: Path) -> np.ndarray:
+    with open(path, "rb") as handle:
+        magic = handle.read(len(_NPY_MAGIC))
+    if magic != _NPY_MAGIC and not magic.startswith(_ZIP_MAGIC):  # np.load would try pickle and talk of allow_pickle
+        raise PointFileError(f"{path}: not a .npy file (no NumPy header; a text point file needs .txt or .csv)")
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:

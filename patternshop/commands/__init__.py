@@ -1,21 +1,129 @@
-"""Subcommands of the ``patternshop`` command, one module per topic, plus shared helpers."""
+"""Subcommands of the ``patternshop`` command, one module per topic, plus shared helpers.
+
+Helpers every command uses the same way: argument types that reject bad numbers
+at parse time (exit status 2), output checks before any work, the memory
+estimate against ``--max-memory-gb``, and ``--threads``.
+"""
 
 from __future__ import annotations
 
+import argparse
+import math
+import os
+import sys
 from pathlib import Path
 
 from synthesis.errors import PatternshopError
 
+DEFAULT_MAX_MEMORY_GB = 4.0
+GIGABYTE = 1e9
+MAX_SEED = 2**32 - 1
+THREADS_HELP = ("CPU threads for this process (torch, numba, OpenMP, ONNX Runtime; default 1). 2 help only on an idle "
+                "machine with large inputs (100k+ points, 1000+ px maps); on a busy 2-core machine they can make it "
+                "several times slower")
+_THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 
-def check_output(output: str | Path, *inputs: str | Path, suffixes: tuple[str, ...] = ()) -> Path:
-    """Validate an output path before any work: right suffix, not one of the inputs.
+
+# --- argument types (argparse reports their errors as one line, exit status 2) ----------------------------
+def _number(text: str, kind: type) -> float:
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    value = _number(text, int)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return int(value)
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    value = _number(text, float)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {value:g}")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """A finite number >= 0."""
+    value = _number(text, float)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value:g}")
+    return value
+
+
+def seed(text: str) -> int:
+    """A random seed in [0, 2**32 - 1]."""
+    value = _number(text, int)
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be an integer from 0 to {MAX_SEED}, got {text}")
+    return int(value)
+
+
+# --- resources ----------------------------------------------------------------------------------------------
+def add_max_memory_option(parser: argparse.ArgumentParser) -> None:
+    """``--max-memory-gb`` (every command: the limit :func:`check_memory` holds estimates to)."""
+    parser.add_argument("--max-memory-gb", type=positive_float, default=DEFAULT_MAX_MEMORY_GB, metavar="GB",
+                        help=f"refuse work whose memory, estimated from the inputs before starting, exceeds GB "
+                        f"(default {DEFAULT_MAX_MEMORY_GB:g})")
+
+
+def add_threads_option(parser: argparse.ArgumentParser) -> None:
+    """``--threads`` (compute commands), applied by :func:`apply_threads` before the command runs."""
+    parser.add_argument("--threads", type=positive_int, default=1, metavar="N", help=THREADS_HELP)
+
+
+def apply_threads(threads: int) -> None:
+    """Use ``threads`` CPU threads in this process: OpenMP/BLAS/numba variables (read at import), torch and numba if loaded."""
+    for variable in _THREAD_VARIABLES:
+        os.environ[variable] = str(threads)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(threads)
+    if "numba" in sys.modules:
+        numba = sys.modules["numba"]
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def check_memory(args: argparse.Namespace, needed_bytes: float, work: str) -> None:
+    """Refuse ``work`` (e.g. "a 20000x20000 px map") when its estimated memory exceeds ``--max-memory-gb``.
 
     Raises:
-        PatternshopError: the suffix is wrong or the output would overwrite an input.
+        PatternshopError: naming the estimate, the limit and the option that lifts it.
+    """
+    if needed_bytes > args.max_memory_gb * GIGABYTE:
+        raise PatternshopError(f"{work} needs about {needed_bytes / GIGABYTE:.3g} GB of memory, over the limit of "
+                               f"{args.max_memory_gb:g} GB (raise it with --max-memory-gb)")
+
+
+def map_pixels(path: str | Path) -> int:
+    """Pixel count of a map file, from its header only (decoding nothing)."""
+    from synthesis.mapio import map_size
+
+    width, height = map_size(path)
+    return width * height
+
+
+# --- inputs and outputs -------------------------------------------------------------------------------------
+def check_output(output: str | Path, *inputs: str | Path, suffixes: tuple[str, ...] = ()) -> Path:
+    """Validate an output path before any work: right suffix, existing folder, not a folder, not one of the inputs.
+
+    Raises:
+        PatternshopError: the suffix is wrong, the folder is missing, or the output would overwrite an input.
     """
     output = Path(output)
     if suffixes and output.suffix.lower() not in suffixes:
         raise PatternshopError(f"{output}: output must end in {' or '.join(suffixes)}")
+    if not output.parent.is_dir():
+        raise PatternshopError(f"{output}: folder {output.parent} does not exist")
+    if output.is_dir():
+        raise PatternshopError(f"{output}: is a folder")
     for source in inputs:
         if Path(source).resolve() == output.resolve():
             raise PatternshopError(f"{output}: output would overwrite the input")
@@ -26,7 +134,7 @@ def check_map_output(output: str | Path, *inputs: str | Path) -> Path:
     """Validate a map output before any work: a CIELAB ``.tif``/``.tiff`` or channel PNGs ``NAME.L.png``, not an input.
 
     Raises:
-        PatternshopError: another suffix, or an output that would overwrite an input.
+        PatternshopError: another suffix, a missing folder, or an output that would overwrite an input.
     """
     from synthesis.mapio import TIFF_SUFFIXES, channel_paths, is_channel_path
 
@@ -39,3 +147,20 @@ def check_map_output(output: str | Path, *inputs: str | Path) -> Path:
         raise PatternshopError(f"{output}: write a map as a CIELAB .tif or as channel PNGs NAME.L.png "
                                "(NAME.a.png and NAME.b.png come with it); an sRGB .png is only a preview (--preview)")
     return check_output(output, *inputs)
+
+
+def check_palette_file(path: str | None) -> None:
+    """Check a ``--palette`` file before any work: it exists and is an ``.npz`` archive (zip).
+
+    Raises:
+        PatternshopError: missing, or not a zip archive.
+    """
+    if path is None:
+        return
+    try:
+        with open(path, "rb") as handle:
+            magic = handle.read(4)
+    except OSError as exc:
+        raise PatternshopError(f"{path}: palette not readable ({exc.strerror})") from None
+    if magic != b"PK\x03\x04":
+        raise PatternshopError(f"{path}: not a palette (a palette is an .npz archive, like synthesis/assets/palette.npz)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from synthesis.labmap import POINTS_PER_INK
+from synthesis.conventions import POINTS_PER_INK
 
 EXIT_SOME_FAILED = 1
 

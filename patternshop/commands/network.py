@@ -7,7 +7,7 @@ import json
 import sys
 
 from patternshop.commands import check_map_output, check_output
-from synthesis.labmap import POINTS_PER_INK
+from synthesis.conventions import POINTS_PER_INK
 
 
 def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
