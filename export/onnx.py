@@ -64,10 +64,14 @@ def load_generator(checkpoint_or_module: PathLike | nn.Module) -> nn.Module:
     path = Path(checkpoint_or_module)
     if not path.is_file():
         raise PatternshopError(f"{path}: no such checkpoint")
+    with open(path, "rb") as handle:
+        if handle.read(4) != b"PK\x03\x04":  # torch.save writes a zip archive; torch.load would give advice on weights_only
+            raise PatternshopError(f"{path}: not a checkpoint (a Lightning .ckpt is a zip archive written by torch.save)")
     try:
         return Pix2PixModule.load_from_checkpoint(path, map_location="cpu").generator
-    except (pickle.UnpicklingError, KeyError, RuntimeError, EOFError, ValueError, TypeError) as exc:
-        raise PatternshopError(f"{path}: not a Pix2PixModule checkpoint ({type(exc).__name__}: {exc})") from exc
+    except (pickle.UnpicklingError, KeyError, RuntimeError, EOFError, ValueError, TypeError, AttributeError) as exc:
+        reason = str(exc).strip().split("\n")[0][:200]  # torch's messages run over many lines of advice
+        raise PatternshopError(f"{path}: not a Pix2PixModule checkpoint ({type(exc).__name__}: {reason})") from exc
 
 
 def metadata_from_pairs(pairs_dir: PathLike) -> dict:

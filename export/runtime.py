@@ -32,7 +32,6 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import onnxruntime
 
 from export.edits import resize
 from synthesis.errors import PatternshopError, PatternshopWarning
@@ -73,6 +72,8 @@ class OnnxModel:
             raise PatternshopError(f"{self.path}: no such model file")
         if threads < 1:
             raise PatternshopError(f"threads must be at least 1, got {threads}")
+        import onnxruntime  # here, not at the top: convert's rasterising workers import this module without it
+
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads
         options.inter_op_num_threads = 1
@@ -88,6 +89,9 @@ class OnnxModel:
             raise PatternshopError(f"{self.path}: not a Patternshop model (needs input '{INPUT_NAME}' (B, 1, H, W) "
                                    f"and output '{OUTPUT_NAME}')")
         self.metadata = {key: _decode(value) for key, value in self.session.get_modelmeta().custom_metadata_map.items()}
+        if "patternshop_format" not in self.metadata:
+            raise PatternshopError(f"{self.path}: not a Patternshop model (no patternshop_format in its metadata; "
+                                   "export one with 'patternshop export')")
         self.raster_size = int(self.metadata.get("raster_size", 256))
 
     @property
@@ -122,12 +126,18 @@ def pattern_raster(points: PointSet, raster_size: int, trained_points_per_ink: f
     ``raster_size`` and ``trained_points_per_ink`` are the model's (:class:`OnnxModel`); a model that does not
     record its points per ink is taken to share the pattern's (R = raster_size).
     """
-    if points_per_ink <= 0:
-        raise PatternshopError(f"points per ink must be positive, got {points_per_ink:g}")
-    w, h = points.domain
-    scale = raster_size * math.sqrt(points_per_ink / (w * h * (trained_points_per_ink or points_per_ink)))
-    side = SIZE_MULTIPLE * max(1, math.ceil(scale / SIZE_MULTIPLE - 1e-9))
+    scale, side = raster_scale(points.domain, raster_size, trained_points_per_ink, points_per_ink)
     return point_raster(points.xy * (scale / side), side), scale
+
+
+def raster_scale(domain: tuple[float, float], raster_size: int, trained_points_per_ink: float | None,
+                 points_per_ink: float = POINTS_PER_INK) -> tuple[float, int]:
+    """(pixels per unit R, raster side S in pixels, a multiple of 64) of a pattern on ``domain`` (step 1-2)."""
+    if not points_per_ink > 0:
+        raise PatternshopError(f"points per ink must be positive, got {points_per_ink:g}")
+    w, h = domain
+    scale = raster_size * math.sqrt(points_per_ink / (w * h * (trained_points_per_ink or points_per_ink)))
+    return scale, SIZE_MULTIPLE * max(1, math.ceil(scale / SIZE_MULTIPLE - 1e-9))
 
 
 def output_to_map(output: np.ndarray, domain: tuple[float, float], scale: float, width: int) -> LabMap:

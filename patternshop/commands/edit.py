@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from patternshop.commands import check_map_output, check_output
+from patternshop.commands import (MAP_BYTES_PER_PIXEL, check_map_output, check_memory, check_output, check_palette_file,
+                                  finite_float, non_negative_int)
+
+EDIT_BYTES_PER_OUTPUT_PIXEL = 100  # expanded map, region, blend and TIFF encoding (measured: 3000 x 3000 px, 0.7 GB)
 
 EPILOG = """\
 Order: --expand first, then the colour (--preset/--ab), then --gradient, each
@@ -35,20 +38,20 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     edit.add_argument("map", help="input map (CIELAB/ICCLAB TIFF, channel PNGs NAME.L.png, or an sRGB image)")
     edit.add_argument("output", help="output map: CIELAB .tif, or NAME.L.png for three channel PNGs")
     region = edit.add_mutually_exclusive_group()
-    region.add_argument("--rect", nargs=4, type=float, metavar=("X0", "Y0", "X1", "Y1"),
+    region.add_argument("--rect", nargs=4, type=finite_float, metavar=("X0", "Y0", "X1", "Y1"),
                         help="edit only inside this rectangle (map units)")
     region.add_argument("--region", metavar="MASK", help="edit only where this greyscale mask image (the map's size) is white")
     edit.add_argument("--invert", action="store_true", help="edit outside the rectangle or mask instead")
     colour = edit.add_mutually_exclusive_group()
     colour.add_argument("--preset", metavar="NAME", help="set the correlation to a palette preset (see 'patternshop palette --list')")
-    colour.add_argument("--ab", nargs=2, type=float, metavar=("A", "B"), help="set the correlation to this a,b colour (each in [-128, 127])")
-    edit.add_argument("--gradient", nargs=6, type=float, metavar=("X0", "Y0", "D0", "X1", "Y1", "D1"),
+    colour.add_argument("--ab", nargs=2, type=finite_float, metavar=("A", "B"), help="set the correlation to this a,b colour (each in [-128, 127])")
+    edit.add_argument("--gradient", nargs=6, type=finite_float, metavar=("X0", "Y0", "D0", "X1", "Y1", "D1"),
                       help="linear density gradient: D0 at (X0, Y0), D1 at (X1, Y1), constant beyond the two points")
     edit.add_argument("--gradient-mode", choices=("set", "multiply"), default="set",
                       help="set: density becomes the gradient (D in [0, 1]); multiply: density is scaled by it "
                       "(D are factors), keeping the tone's shape (default set)")
-    edit.add_argument("--expand", nargs=4, type=int, metavar=("LEFT", "TOP", "RIGHT", "BOTTOM"), help="add margins of these many pixels")
-    edit.add_argument("--fill", nargs=3, type=float, metavar=("L", "A", "B"), help="colour of the new margins (default: repeat the edge pixels)")
+    edit.add_argument("--expand", nargs=4, type=non_negative_int, metavar=("LEFT", "TOP", "RIGHT", "BOTTOM"), help="add margins of these many pixels")
+    edit.add_argument("--fill", nargs=3, type=finite_float, metavar=("L", "A", "B"), help="colour of the new margins (default: repeat the edge pixels)")
     edit.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of a TIFF output (default 16)")
     edit.add_argument("--preview", metavar="PNG", help="also write an sRGB PNG preview of the result")
     edit.add_argument("--palette", metavar="FILE", help="palette asset for --preset (default: the shipped one)")
@@ -58,7 +61,8 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
 def run_edit(args: argparse.Namespace) -> None:
     from export.edits import density_gradient, expand, read_region, rect_region, set_correlation
     from synthesis.errors import PatternshopError
-    from synthesis.mapio import read_map, write_map, write_preview
+    from synthesis.atomic import all_or_nothing
+    from synthesis.mapio import map_size, read_map, write_map, write_preview
 
     colour = args.preset is not None or args.ab is not None
     if (args.rect or args.region) and not (colour or args.gradient):
@@ -71,6 +75,12 @@ def run_edit(args: argparse.Namespace) -> None:
         raise PatternshopError("--fill needs --expand")
     output = check_map_output(args.output, args.map)
     preview = check_output(args.preview, args.map, args.output, suffixes=(".png",)) if args.preview else None
+    check_palette_file(args.palette)
+    width, height = map_size(args.map)
+    left, top, right, bottom = args.expand or (0, 0, 0, 0)
+    out_width, out_height = width + left + right, height + top + bottom
+    check_memory(args, MAP_BYTES_PER_PIXEL * width * height + EDIT_BYTES_PER_OUTPUT_PIXEL * out_width * out_height,
+                 f"editing into a {out_width}x{out_height} px map")
     ab = None
     if args.preset is not None:
         from synthesis.palette import load_palette
@@ -88,12 +98,18 @@ def run_edit(args: argparse.Namespace) -> None:
     region = rect_region(shape, tuple(args.rect)) if args.rect else read_region(args.region, shape) if args.region else None
     if args.invert:
         region = 1.0 - region
+    if region is not None and not region.any():
+        where = f"the rectangle {tuple(args.rect)}" if args.rect else f"the mask {args.region}"
+        raise PatternshopError(f"{where}{' inverted' if args.invert else ''} selects no pixel of the {lab_map.width}x"
+                               f"{lab_map.height} px map (domain {lab_map.domain[0]:.4g} x {lab_map.domain[1]:.4g}): "
+                               "the edit would change nothing")
     if ab is not None:
         lab_map = set_correlation(lab_map, ab, region)
     if args.gradient:
         x0, y0, d0, x1, y1, d1 = args.gradient
         lab_map = density_gradient(lab_map, (x0, y0), (x1, y1), (d0, d1), args.gradient_mode, region)
-    write_map(lab_map, output, bits=args.bits)
-    if preview is not None:
-        write_preview(lab_map, preview)
+    with all_or_nothing():
+        write_map(lab_map, output, bits=args.bits)
+        if preview is not None:
+            write_preview(lab_map, preview)
     print(f"wrote {output} ({lab_map.width}x{lab_map.height} px)", file=sys.stderr)

@@ -6,8 +6,12 @@ import argparse
 import json
 import sys
 
-from patternshop.commands import check_map_output, check_output
+from patternshop.commands import (add_threads_option, check_map_output, check_memory, check_output, check_point_file,
+                                  non_negative_int, positive_float, positive_int)
 from synthesis.conventions import POINTS_PER_INK
+
+EXPORT_BASE_BYTES = 1e9  # torch, Lightning and the generator
+EXPORT_CHECK_BYTES_PER_PIXEL = 400  # one batch through torch and ONNX Runtime (about 180 B/px each, as measured for infer)
 
 
 def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -28,12 +32,12 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     infer.add_argument("--model", metavar="FILE", help="ONNX model (default: the shipped patternshop_nn/assets/default.onnx)")
     infer.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of a TIFF output (default 16)")
     infer.add_argument("--preview", metavar="PNG", help="also write an sRGB PNG preview of the map")
-    infer.add_argument("--threads", type=int, default=1, metavar="N", help="ONNX Runtime threads (default 1)")
     infer.add_argument("--domain", nargs=2, type=float, metavar=("W", "H"),
                        help="domain [0,W]x[0,H] of the points, max(W,H)=1 (default: the file's '# domain:' comment, else 1 1)")
-    infer.add_argument("--width", type=int, metavar="PX", help="resample the map to this width (default: 256 px on the long side)")
-    infer.add_argument("--points-per-ink", type=float, default=POINTS_PER_INK, metavar="N",
+    infer.add_argument("--width", type=positive_int, metavar="PX", help="resample the map to this width (default: 256 px on the long side)")
+    infer.add_argument("--points-per-ink", type=positive_float, default=POINTS_PER_INK, metavar="N",
                        help=f"points of a fully dark map at the pattern's scale (default {POINTS_PER_INK}, as synthesize)")
+    add_threads_option(infer)
     infer.set_defaults(func=run_infer)
 
     export = subparsers.add_parser(
@@ -52,24 +56,41 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     export.add_argument("--description", help="model description for the model card")
     export.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="another model-card field (VALUE is JSON if it parses, else text); repeatable")
-    export.add_argument("--check", type=int, default=2, metavar="N", help="random rasters for the torch/ONNX comparison (default 2)")
+    export.add_argument("--check", type=non_negative_int, default=2, metavar="N", help="random rasters for the torch/ONNX comparison (default 2)")
+    add_threads_option(export)
     export.set_defaults(func=run_export)
 
 
+def infer_memory(raster_side: int, map_pixels: int) -> float:
+    """Estimated peak bytes of ``infer``: the network on a (side x side) raster, then a map (and preview) of ``map_pixels``.
+
+    Measured on this machine: 1.8 GB for a 3136 px raster, 1.0 GB for a 4000 x 2667 px map.
+    """
+    return 0.25e9 + 180 * raster_side**2 + 80 * map_pixels
+
+
 def run_infer(args: argparse.Namespace) -> None:
-    from export.runtime import OnnxModel, check_palette, points_to_map
+    output = check_map_output(args.output, args.points)
+    preview = check_output(args.preview, args.points, args.output, suffixes=(".png",)) if args.preview else None
+    check_point_file(args, args.points)
+
+    from export.runtime import OnnxModel, check_palette, map_width, points_to_map, raster_scale
+    from synthesis.atomic import all_or_nothing
     from synthesis.mapio import write_map, write_preview
     from synthesis.points import read_points
 
-    output = check_map_output(args.output, args.points)
-    preview = check_output(args.preview, args.points, args.output, suffixes=(".png",)) if args.preview else None
     model = OnnxModel(args.model, threads=args.threads)
     check_palette(model)
     points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
+    (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink, args.points_per_ink)
+    width = map_width(points.domain, model, args.width)
+    check_memory(args, infer_memory(side, width * max(1, round(width * h / w))),
+                 f"inferring a {width} px wide map from a {side}x{side} px raster ({args.points_per_ink:g} points per ink)")
     lab_map = points_to_map(points, model, width=args.width, points_per_ink=args.points_per_ink)
-    write_map(lab_map, output, bits=args.bits)
-    if preview is not None:
-        write_preview(lab_map, preview)
+    with all_or_nothing():
+        write_map(lab_map, output, bits=args.bits)
+        if preview is not None:
+            write_preview(lab_map, preview)
     print(f"wrote {output} ({lab_map.width}x{lab_map.height} px) from {len(points)} points with {model.path}", file=sys.stderr)
 
 
@@ -94,6 +115,8 @@ def run_export(args: argparse.Namespace) -> None:
     from synthesis.raster import RASTER_SIZE
 
     output = check_output(args.output, args.checkpoint, suffixes=(".onnx",))
+    check_memory(args, EXPORT_BASE_BYTES + EXPORT_CHECK_BYTES_PER_PIXEL * args.check * RASTER_SIZE**2,
+                 f"the torch/ONNX comparison on {args.check} rasters (--check)")
     metadata = metadata_from_pairs(args.pairs) if args.pairs else {}
     metadata.update({key: value for key, value in (("name", args.name), ("description", args.description)) if value})
     metadata.update(_card_field(text) for text in args.set)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from patternshop.commands import check_output
+from patternshop.commands import check_output, check_point_file
 
 
 def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -32,6 +32,7 @@ def run_points(args: argparse.Namespace) -> None:
     from synthesis.points import NPY_SUFFIX, TEXT_SUFFIXES, read_points, write_points
 
     output = check_output(args.output, args.input, suffixes=TEXT_SUFFIXES + (NPY_SUFFIX,)) if args.output else None
+    check_point_file(args, args.input)
     points = read_points(args.input, domain=tuple(args.domain) if args.domain else None)
     w, h = points.domain
     radii = "with radii" if points.radius is not None else "no radii"
