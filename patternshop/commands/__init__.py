@@ -13,14 +13,12 @@ import os
 import sys
 from pathlib import Path
 
+from synthesis import resources
 from synthesis.errors import PatternshopError
 
 DEFAULT_MAX_MEMORY_GB = 4.0
 GIGABYTE = 1e9
 MAX_SEED = 2**32 - 1
-MAP_BYTES_PER_PIXEL = 150  # read_map and a colour conversion (measured: 1000 x 1000 px, 0.14 GB over the interpreter)
-POINT_READ_BYTES_PER_TEXT_BYTE = 12  # synthesis.points.read_points, measured: 1M points, 24 MB of text, 0.2 GB peak
-POINT_READ_BYTES_PER_NPY_BYTE = 4
 THREADS_HELP = ("CPU threads for this process (torch, numba, OpenMP, ONNX Runtime; default 1). 2 help only on an idle "
                 "machine with large inputs (100k+ points, 1000+ px maps); on a busy 2-core machine they can make it "
                 "several times slower")
@@ -129,7 +127,7 @@ def map_pixels(path: str | Path) -> int:
 def check_map_input(args: argparse.Namespace, path: str | Path) -> int:
     """Refuse a map whose reading would exceed ``--max-memory-gb``; returns its pixel count."""
     pixels = map_pixels(path)
-    check_memory(args, MAP_BYTES_PER_PIXEL * pixels, f"reading the {pixels:,}-pixel map {path}")
+    check_memory(args, resources.map_bytes(pixels), f"reading the {pixels:,}-pixel map {path}")
     return pixels
 
 
@@ -140,8 +138,8 @@ def check_point_file(args: argparse.Namespace, path: str | Path) -> None:
     """
     path = Path(path)
     if path.is_file():
-        bytes_per_file_byte = POINT_READ_BYTES_PER_NPY_BYTE if path.suffix.lower() == ".npy" else POINT_READ_BYTES_PER_TEXT_BYTE
-        check_memory(args, bytes_per_file_byte * path.stat().st_size, f"reading {path} ({path.stat().st_size / 1e6:.3g} MB)")
+        size = path.stat().st_size
+        check_memory(args, resources.point_file_bytes(size, npy=path.suffix.lower() == ".npy"), f"reading {path} ({size / 1e6:.3g} MB)")
 
 
 # --- inputs and outputs -------------------------------------------------------------------------------------

@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from patternshop.commands import (MAP_BYTES_PER_PIXEL, check_map_output, check_memory, check_output, check_palette_file,
-                                  finite_float, non_negative_int)
-
-EDIT_BYTES_PER_OUTPUT_PIXEL = 100  # expanded map, region, blend and TIFF encoding (measured: 3000 x 3000 px, 0.7 GB)
+from patternshop.commands import (check_map_output, check_memory, check_output, check_palette_file, finite_float,
+                                  non_negative_int)
+from synthesis.resources import edit_bytes
 
 EPILOG = """\
 Order: --expand first, then the colour (--preset/--ab), then --gradient, each
@@ -79,7 +78,7 @@ def run_edit(args: argparse.Namespace) -> None:
     width, height = map_size(args.map)
     left, top, right, bottom = args.expand or (0, 0, 0, 0)
     out_width, out_height = width + left + right, height + top + bottom
-    check_memory(args, MAP_BYTES_PER_PIXEL * width * height + EDIT_BYTES_PER_OUTPUT_PIXEL * out_width * out_height,
+    check_memory(args, edit_bytes(width * height, out_width * out_height),
                  f"editing into a {out_width}x{out_height} px map")
     ab = None
     if args.preset is not None:

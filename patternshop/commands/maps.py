@@ -6,10 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from patternshop.commands import MAP_BYTES_PER_PIXEL, check_map_input, check_memory, check_output, positive_int
+from patternshop.commands import check_map_input, check_memory, check_output, positive_int
 from synthesis.errors import PatternshopError
-
-PREVIEW_BYTES_PER_OUTPUT_PIXEL = 5  # the enlarged RGB image and PNG encoding (measured: 64M px, 0.11 GB over --scale 1)
+from synthesis.resources import preview_bytes
 
 
 def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -55,7 +54,7 @@ def run_preview(args: argparse.Namespace) -> None:
 
     output = check_output(args.output, args.map, suffixes=(".png",))
     pixels = check_map_input(args, args.map)
-    check_memory(args, MAP_BYTES_PER_PIXEL * pixels + PREVIEW_BYTES_PER_OUTPUT_PIXEL * pixels * args.scale**2,
+    check_memory(args, preview_bytes(pixels, args.scale),
                  f"a preview of {pixels * args.scale**2:,} pixels (--scale {args.scale})")
     lab_map = read_map(args.map)
     write_preview(lab_map, output, scale=args.scale)

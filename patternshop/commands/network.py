@@ -9,9 +9,7 @@ import sys
 from patternshop.commands import (add_threads_option, check_map_output, check_memory, check_output, check_point_file,
                                   non_negative_int, positive_float, positive_int)
 from synthesis.conventions import POINTS_PER_INK
-
-EXPORT_BASE_BYTES = 1e9  # torch, Lightning and the generator
-EXPORT_CHECK_BYTES_PER_PIXEL = 400  # one batch through torch and ONNX Runtime (about 180 B/px each, as measured for infer)
+from synthesis.resources import export_check_bytes, inference_bytes
 
 
 def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -61,14 +59,6 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     export.set_defaults(func=run_export)
 
 
-def infer_memory(raster_side: int, map_pixels: int) -> float:
-    """Estimated peak bytes of ``infer``: the network on a (side x side) raster, then a map (and preview) of ``map_pixels``.
-
-    Measured on this machine: 1.8 GB for a 3136 px raster, 1.0 GB for a 4000 x 2667 px map.
-    """
-    return 0.25e9 + 180 * raster_side**2 + 80 * map_pixels
-
-
 def run_infer(args: argparse.Namespace) -> None:
     output = check_map_output(args.output, args.points)
     preview = check_output(args.preview, args.points, args.output, suffixes=(".png",)) if args.preview else None
@@ -84,7 +74,7 @@ def run_infer(args: argparse.Namespace) -> None:
     points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
     (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink, args.points_per_ink)
     width = map_width(points.domain, model, args.width)
-    check_memory(args, infer_memory(side, width * max(1, round(width * h / w))),
+    check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
                  f"inferring a {width} px wide map from a {side}x{side} px raster ({args.points_per_ink:g} points per ink)")
     lab_map = points_to_map(points, model, width=args.width, points_per_ink=args.points_per_ink)
     with all_or_nothing():
@@ -115,7 +105,7 @@ def run_export(args: argparse.Namespace) -> None:
     from synthesis.raster import RASTER_SIZE
 
     output = check_output(args.output, args.checkpoint, suffixes=(".onnx",))
-    check_memory(args, EXPORT_BASE_BYTES + EXPORT_CHECK_BYTES_PER_PIXEL * args.check * RASTER_SIZE**2,
+    check_memory(args, export_check_bytes(args.check, RASTER_SIZE),
                  f"the torch/ONNX comparison on {args.check} rasters (--check)")
     metadata = metadata_from_pairs(args.pairs) if args.pairs else {}
     metadata.update({key: value for key, value in (("name", args.name), ("description", args.description)) if value})

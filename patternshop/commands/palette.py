@@ -8,11 +8,8 @@ import sys
 
 from patternshop.commands import (add_threads_option, check_memory, check_output, check_palette_file, check_point_file,
                                   positive_int)
-from patternshop.commands.synthesize import RENDER_BYTES_PER_PIXEL, synthesis_memory
+from synthesis.resources import analysis_bytes, palette_picture_bytes, render_bytes, synthesis_bytes
 
-ANALYZE_BASE_BYTES = 0.7e9  # measured: 0.58 GB peak for 20k to 1M points (chunked PCF), with margin
-ANALYZE_BYTES_PER_POINT = 200
-PALETTE_PICTURE_BYTES_PER_PIXEL = 20  # RGB canvas, cells and PNG encoding
 CONTINUOUS_MAP_PIXELS = 256 * 256  # the continuous palette synthesises on the 256 x 256 ab plane
 
 
@@ -68,9 +65,9 @@ def run_palette(args: argparse.Namespace) -> None:
         raise PatternshopError("--grid must be >= 2 and --cell >= 32")
     output = check_output(args.output, suffixes=(".png",))
     size = args.grid * args.cell
-    check_memory(args, PALETTE_PICTURE_BYTES_PER_PIXEL * size**2, f"a {size}x{size} px palette picture")
+    check_memory(args, palette_picture_bytes(size), f"a {size}x{size} px palette picture")
     if args.continuous:
-        check_memory(args, synthesis_memory(CONTINUOUS_MAP_PIXELS, args.points) + RENDER_BYTES_PER_PIXEL * size**2,
+        check_memory(args, synthesis_bytes(CONTINUOUS_MAP_PIXELS, args.points) + render_bytes(size, size),
                      f"a continuous palette of {args.points:,} points")
     from synthesis.palette_image import draw_continuous_palette, draw_palette
 
@@ -91,7 +88,7 @@ def run_analyze(args: argparse.Namespace) -> None:
     check_palette_file(args.palette)
     check_point_file(args, args.points)
     points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
-    check_memory(args, ANALYZE_BASE_BYTES + ANALYZE_BYTES_PER_POINT * len(points), f"analysing {len(points):,} points")
+    check_memory(args, analysis_bytes(len(points)), f"analysing {len(points):,} points")
     result = analyze_points(points, load_palette(args.palette))
     if plot is not None:
         plot_analysis(result, plot)

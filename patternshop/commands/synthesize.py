@@ -9,15 +9,10 @@ import sys
 from patternshop.commands import (add_threads_option, check_memory, check_output, check_palette_file, map_pixels,
                                   non_negative_float, positive_float, positive_int, seed)
 from synthesis.atomic import all_or_nothing, atomic_write_text
+from synthesis.resources import render_bytes, synthesis_bytes
 from synthesis.conventions import POINTS_PER_INK
 from synthesis.errors import PatternshopError
 
-# Peak memory of synthesis v2, measured with /usr/bin/time on this machine (20k and 200k points: 0.56 and 3.1 GB;
-# 1000^2 and 2000^2 px maps with 2k points: 0.43 and 0.94 GB), rounded up.
-SYNTHESIS_BASE_BYTES = 0.35e9
-SYNTHESIS_BYTES_PER_POINT = 15e3
-SYNTHESIS_BYTES_PER_PIXEL = 180
-RENDER_BYTES_PER_PIXEL = 100  # render_png: supersampled span counts and the grey image, per output pixel (PNG width^2 at most)
 
 
 def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -53,11 +48,6 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     parser.set_defaults(func=run_synthesize)
 
 
-def synthesis_memory(pixels: int, points: int) -> float:
-    """Estimated peak bytes of synthesising ``points`` points on a map of ``pixels`` pixels (measured, with margin)."""
-    return SYNTHESIS_BASE_BYTES + SYNTHESIS_BYTES_PER_PIXEL * pixels + SYNTHESIS_BYTES_PER_POINT * points
-
-
 def run_synthesize(args: argparse.Namespace) -> None:
     from synthesis.points import NPY_SUFFIX, TEXT_SUFFIXES
 
@@ -69,9 +59,9 @@ def run_synthesize(args: argparse.Namespace) -> None:
         raise PatternshopError(f"--max-radius {args.max_radius:g} is smaller than --min-radius {args.min_radius:g}")
     check_palette_file(args.palette)
     pixels = map_pixels(args.map)
-    check_memory(args, synthesis_memory(pixels, args.points or 0), f"synthesis of {args.points:,} points" if args.points else f"synthesis on a {pixels:,}-pixel map")
+    check_memory(args, synthesis_bytes(pixels, args.points or 0), f"synthesis of {args.points:,} points" if args.points else f"synthesis on a {pixels:,}-pixel map")
     if png is not None:
-        check_memory(args, RENDER_BYTES_PER_PIXEL * args.png_width**2, f"a {args.png_width} px wide PNG")
+        check_memory(args, render_bytes(args.png_width, args.png_width), f"a {args.png_width} px wide PNG")
 
     from synthesis.mapio import read_map
     from synthesis.palette import load_palette
@@ -82,7 +72,7 @@ def run_synthesize(args: argparse.Namespace) -> None:
 
     lab_map = read_map(args.map)
     n = args.points if args.points is not None else point_count(lab_map, args.points_per_ink)
-    check_memory(args, synthesis_memory(pixels, n), f"synthesis of {n:,} points"
+    check_memory(args, synthesis_bytes(pixels, n), f"synthesis of {n:,} points"
                  + ("" if args.points is not None else f" ({args.points_per_ink:g} points per ink x mean density)"))
     result = synthesize(lab_map, n=n, palette=load_palette(args.palette), schedule=args.schedule, iterations=args.iterations,
                         seed=args.seed, progress=not args.no_progress and sys.stderr.isatty(), threads=args.threads)

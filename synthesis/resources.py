@@ -1,0 +1,77 @@
+"""Peak-memory estimates of the heavy steps, in bytes, from the sizes of their inputs (no numpy: the CLI checks them first).
+
+Each figure was measured with ``/usr/bin/time -f %M`` (peak resident memory) on
+the 2-core development machine and rounded up; the interpreter with numpy
+takes about 0.1 GB of it. The CLI refuses work whose estimate exceeds
+``--max-memory-gb`` (:func:`patternshop.commands.check_memory`).
+"""
+
+from __future__ import annotations
+
+BASE = 0.2e9  # interpreter, numpy, Pillow, tifffile
+MAP_BYTES_PER_PIXEL = 150  # read_map with its colour conversion (1000 x 1000 px: 0.14 GB over the base)
+TEXT_POINTS_BYTES_PER_FILE_BYTE = 12  # read_points of text (1M points, 24 MB: 0.2 GB peak)
+NPY_POINTS_BYTES_PER_FILE_BYTE = 4
+SYNTHESIS_BASE = 0.35e9  # synthesis v2 (20k / 200k points: 0.56 / 3.1 GB; 1000^2 / 2000^2 px maps: 0.43 / 0.94 GB)
+SYNTHESIS_BYTES_PER_POINT = 15e3
+SYNTHESIS_BYTES_PER_PIXEL = 180
+RENDER_BYTES_PER_PIXEL = 100  # render_png: supersampled span counts and the grey image, per output pixel
+NETWORK_BYTES_PER_RASTER_PIXEL = 180  # ONNX Runtime, default generator (a 3136^2 px raster: 1.8 GB)
+INFERRED_MAP_BYTES_PER_PIXEL = 80  # decoding, resampling and writing the inferred map (4000 x 2667 px: 1.0 GB)
+PREVIEW_BYTES_PER_OUTPUT_PIXEL = 5  # the enlarged RGB image and its PNG encoding (64M px: 0.11 GB)
+EDIT_BYTES_PER_OUTPUT_PIXEL = 100  # expanded map, region, blend and TIFF encoding (3000 x 3000 px: 0.7 GB)
+ANALYSIS_BASE = 0.7e9  # analyze: 0.58 GB peak from 20k to 1M points (PCF in chunks)
+ANALYSIS_BYTES_PER_POINT = 200
+PALETTE_PICTURE_BYTES_PER_PIXEL = 20  # RGB canvas, cells and PNG encoding
+EXPORT_BASE = 1e9  # torch, Lightning and the generator
+EXPORT_CHECK_BYTES_PER_PIXEL = 400  # one batch through torch and ONNX Runtime
+
+
+def point_file_bytes(file_size: int, npy: bool) -> float:
+    """Reading a point file of ``file_size`` bytes (``.npy`` or text)."""
+    return BASE + (NPY_POINTS_BYTES_PER_FILE_BYTE if npy else TEXT_POINTS_BYTES_PER_FILE_BYTE) * file_size
+
+
+def map_bytes(pixels: int) -> float:
+    """Reading (and converting) a map of ``pixels`` pixels."""
+    return BASE + MAP_BYTES_PER_PIXEL * pixels
+
+
+def synthesis_bytes(pixels: int, points: int) -> float:
+    """Synthesising ``points`` points on a map of ``pixels`` pixels."""
+    return SYNTHESIS_BASE + SYNTHESIS_BYTES_PER_PIXEL * pixels + SYNTHESIS_BYTES_PER_POINT * points
+
+
+def render_bytes(width_px: int, height_px: int) -> float:
+    """Rendering dots into a PNG of ``width_px`` x ``height_px``."""
+    return RENDER_BYTES_PER_PIXEL * width_px * height_px
+
+
+def inference_bytes(raster_side: int, map_pixels: int) -> float:
+    """The network on one (side x side) raster, then a map (and preview) of ``map_pixels``."""
+    return BASE + NETWORK_BYTES_PER_RASTER_PIXEL * raster_side**2 + INFERRED_MAP_BYTES_PER_PIXEL * map_pixels
+
+
+def preview_bytes(pixels: int, scale: int) -> float:
+    """A preview of a ``pixels``-pixel map enlarged ``scale`` times."""
+    return map_bytes(pixels) + PREVIEW_BYTES_PER_OUTPUT_PIXEL * pixels * scale**2
+
+
+def edit_bytes(pixels: int, output_pixels: int) -> float:
+    """Editing a ``pixels``-pixel map into one of ``output_pixels`` (after --expand)."""
+    return map_bytes(pixels) + EDIT_BYTES_PER_OUTPUT_PIXEL * output_pixels
+
+
+def analysis_bytes(points: int) -> float:
+    """``analyze`` of ``points`` points."""
+    return ANALYSIS_BASE + ANALYSIS_BYTES_PER_POINT * points
+
+
+def palette_picture_bytes(side_px: int) -> float:
+    """A palette picture of ``side_px`` x ``side_px``."""
+    return BASE + PALETTE_PICTURE_BYTES_PER_PIXEL * side_px**2
+
+
+def export_check_bytes(rasters: int, raster_side: int) -> float:
+    """``export``: the generator, and the torch/ONNX comparison on ``rasters`` rasters of ``raster_side``."""
+    return EXPORT_BASE + EXPORT_CHECK_BYTES_PER_PIXEL * rasters * raster_side**2
