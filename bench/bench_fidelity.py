@@ -1,0 +1,619 @@
+"""Fidelity benchmark (issue 12): is a synthesised pattern a true sample of its map?
+
+Run with ``make bench`` (or ``python bench/bench_fidelity.py [--quick] [--only CASE]``);
+results go to ``out/bench/fidelity.json`` (``fidelity_quick.json`` for --quick/--only runs)
+and a contact sheet of crops to ``out/bench/fidelity_sheet.png``.
+
+The synthesiser is called only through its public API (``synthesize(lab_map, n=, seed=)``
+-> ``.points.xy``), and measured with statistics written independently of its objective
+(``bench/fidelity_stats.py``: fine PCF, NN distances, empty circles, strip density
+profiles, density PSNR), against reference patterns: each preset's own generator
+(torus), scipy's ``qmc.PoissonDisk``, Poisson, and a weighted Lloyd stippler.
+The only use of the synthesiser's internals is :func:`objective_score`, which
+scores patterns under the synthesiser's *own* objective (objective validity).
+
+Cases (``--only``): ``constant`` (constant maps of each preset, n = 4096),
+``edges`` (blue|red and blue|white stripe maps), ``logo`` (examples/logo.tif, default
+n), ``photos`` (scikit-image's camera and astronaut, 20,000 points, blue).
+Every figure is the median over the seeds (3; 1 with --quick).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import fidelity_stats as fs  # noqa: E402
+from common import RESULTS_DIR  # noqa: E402
+
+from synthesis.generators import generate  # noqa: E402
+from synthesis.labmap import LabMap  # noqa: E402
+from synthesis.palette import load_palette  # noqa: E402
+from synthesis.synthesize import synthesize  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+PRESETS = ["white", "blue", "green", "red", "step"]
+N_CONSTANT = 4096
+N_PHOTO = 20000
+CASES = ["constant", "edges", "logo", "photos"]
+
+
+# --------------------------------------------------------------------------- the synthesiser, as a user calls it
+
+
+def run_synthesis(lab: np.ndarray, n: int | None, seed: int) -> tuple[np.ndarray, float]:
+    """Points (n, 2) for a CIELAB array through the public API, and the wall time."""
+    start = time.perf_counter()
+    result = synthesize(LabMap(lab.astype(np.float32)), n=n, seed=seed)
+    return np.asarray(result.points.xy, np.float64), time.perf_counter() - start
+
+
+def domain_of(lab: np.ndarray) -> tuple[float, float]:
+    H, W = lab.shape[:2]
+    side = max(H, W)
+    return W / side, H / side
+
+
+def density_of(lab: np.ndarray) -> np.ndarray:
+    return 1.0 - np.asarray(lab[..., 0], np.float64) / 100.0
+
+
+def objective_score(lab: np.ndarray, xy: np.ndarray) -> float | None:
+    """The synthesiser's own objective for ``xy`` on the map (lower is better to *it*).
+
+    The one place that touches the synthesiser's internals; re-point it when that API changes.
+    Today: ``final_loss(MapFields.build(map, n, palette), xy)`` with every point a centre.
+    """
+    try:
+        from synthesis.fields import MapFields
+        from synthesis.synthesize import final_loss
+
+        fields = MapFields.build(LabMap(lab.astype(np.float32)), len(xy), load_palette())
+        try:
+            return float(final_loss(fields, torch.from_numpy(np.asarray(xy, np.float32))))
+        except Exception:  # newer API: a numpy array
+            return float(final_loss(fields, np.asarray(xy, np.float64)))
+    except Exception as error:  # noqa: BLE001 - a missing objective must not stop the bench
+        print(f"objective_score unavailable: {error!r}", flush=True)
+        return None
+
+
+def constant_lab(ab: tuple[float, float], size: int = 64, L: float = 50.0) -> np.ndarray:
+    lab = np.zeros((size, size, 3), np.float32)
+    lab[..., 0] = L
+    lab[..., 1:] = ab
+    return lab
+
+
+def median(values):
+    values = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    return float(statistics.median(values)) if values else None
+
+
+def medians(rows: list[dict]) -> dict:
+    out = {}
+    for key in rows[0]:
+        if all(isinstance(row.get(key), (int, float)) and not isinstance(row.get(key), bool) for row in rows):
+            out[key] = median([row[key] for row in rows])
+    return out
+
+
+def r4(x):
+    return None if x is None else round(float(x), 4)
+
+
+# --------------------------------------------------------------------------- cases
+
+
+def case_constant(seeds: list[int], keep: dict) -> dict:
+    presets = load_palette().preset_ab()
+    out: dict = {}
+    for name in PRESETS:
+        lab = constant_lab(presets[name])
+        domain = domain_of(lab)
+        rows = []
+        for seed in seeds:
+            xy, seconds = run_synthesis(lab, N_CONSTANT, seed)
+            gen_a = generate(name, N_CONSTANT, 1000 + seed)
+            gen_b = generate(name, N_CONSTANT, 2000 + seed)
+            intensity = fs.Intensity.constant(N_CONSTANT, domain)
+            synth_nn = fs.nn_stats(xy, intensity)
+            gen_nn = fs.nn_stats(gen_a, intensity, periodic=True)
+            r, g_synth = fs.pcf(xy, domain)
+            _, g_a = fs.pcf(gen_a, domain, periodic=True)
+            _, g_b = fs.pcf(gen_b, domain, periodic=True)
+            d_sg, d_gg = fs.pcf_distance(g_synth, g_a), fs.pcf_distance(g_a, g_b)
+            synth_lec = fs.empty_circles(xy, intensity)
+            gen_lec = fs.empty_circles(gen_a, intensity, periodic=True)
+            _, border_synth = fs.border_profile(xy, domain, N_CONSTANT)
+            _, border_gen = fs.border_profile(gen_a, domain, N_CONSTANT)  # torus pattern seen through the square
+            loss_synth, loss_gen = objective_score(lab, xy), objective_score(lab, gen_a)
+            row = {
+                "seed": seed, "synth_seconds": seconds,
+                "stacked_fraction": synth_nn["stacked_fraction"], "gen_stacked_fraction": gen_nn["stacked_fraction"],
+                "min_nn": synth_nn["min_nn"], "gen_min_nn": gen_nn["min_nn"],
+                "nn_cv": synth_nn["nn_cv"], "gen_nn_cv": gen_nn["nn_cv"], "nn_cv_ratio": synth_nn["nn_cv"] / gen_nn["nn_cv"],
+                "pcf_dist_synth_gen": d_sg, "pcf_dist_gen_gen": d_gg, "pcf_ratio": d_sg / d_gg,
+                "largest_empty_circle": synth_lec["largest"], "gen_largest_empty_circle": gen_lec["largest"],
+                "holes_over_1": synth_lec["holes"], "gen_holes_over_1": gen_lec["holes"],
+                "border_min": float(border_synth.min()), "border_max": float(border_synth.max()),
+                "border_first_strip": float(border_synth[0]),
+                "gen_border_min": float(border_gen.min()), "gen_border_max": float(border_gen.max()),
+                "objective_synth": loss_synth, "objective_gen": loss_gen,
+                "objective_gen_over_synth": (loss_gen / loss_synth) if loss_synth and loss_gen is not None else None,
+                "border_profile": [r4(v) for v in border_synth],
+            }
+            rows.append(row)
+            print(f"constant {name} seed {seed}: " + json.dumps({k: r4(v) if isinstance(v, float) else v
+                                                               for k, v in row.items() if k != "border_profile"}), flush=True)
+            if seed == seeds[0]:
+                keep[f"constant_{name}"] = {"synth": xy, "gen": gen_a, "domain": domain}
+                keep.setdefault("pcf", {})[name] = {"r": r, "synth": g_synth, "gen": g_a, "gen2": g_b}
+        out[name] = {"median": medians(rows), "per_seed": rows,
+                     "pcf_seed0": {"r": [r4(v) for v in keep["pcf"][name]["r"]],
+                                   "synth": [r4(v) for v in keep["pcf"][name]["synth"]],
+                                   "gen": [r4(v) for v in keep["pcf"][name]["gen"]]}}
+    # bounded / unstructured references at the same n, for the blue rows
+    refs = []
+    for seed in seeds:
+        pd = fs.poisson_disk(N_CONSTANT, seed)
+        po = np.random.default_rng(3000 + seed).random((N_CONSTANT, 2))
+        blue_gen = generate("blue", N_CONSTANT, 1000 + seed)
+        row = {"seed": seed}
+        for label, pts in (("poisson_disk", pd), ("poisson", po)):
+            intensity = fs.Intensity.constant(len(pts))
+            nn = fs.nn_stats(pts, intensity)
+            lec = fs.empty_circles(pts, intensity)
+            _, border = fs.border_profile(pts, (1.0, 1.0), len(pts))
+            _, g = fs.pcf(pts)
+            _, g_blue = fs.pcf(blue_gen, periodic=True)
+            row.update({f"{label}_n": len(pts), f"{label}_stacked_fraction": nn["stacked_fraction"], f"{label}_min_nn": nn["min_nn"],
+                        f"{label}_nn_cv": nn["nn_cv"], f"{label}_largest_empty_circle": lec["largest"],
+                        f"{label}_border_min": float(border.min()), f"{label}_border_max": float(border.max()),
+                        f"{label}_pcf_dist_to_blue_gen": fs.pcf_distance(g, g_blue)})
+        refs.append(row)
+        print(f"references seed {seed}: " + json.dumps({k: r4(v) for k, v in row.items()}), flush=True)
+    out["references"] = {"median": medians(refs), "per_seed": refs,
+                         "note": "poisson_disk: scipy qmc.PoissonDisk fill_space at 0.725 r_max (bounded unit square, about n points); "
+                                 "poisson: n uniform points in the unit square"}
+    return out
+
+
+def stripe_lab(left_ab, right_ab, stripe_px: int = 16, size=(64, 128), L: float = 50.0) -> np.ndarray:
+    """Vertical stripes ``stripe_px`` wide alternating left_ab (first) and right_ab, constant L."""
+    H, W = size
+    lab = np.zeros((H, W, 3), np.float32)
+    lab[..., 0] = L
+    stripe = (np.arange(W) // stripe_px) % 2
+    lab[:, stripe == 0, 1:] = left_ab
+    lab[:, stripe == 1, 1:] = right_ab
+    return lab
+
+
+def edge_profile(xy: np.ndarray, lab: np.ndarray, stripe_px: int, n: int, reach: float = 4.0):
+    """Strip counts against the signed distance to the nearest stripe edge (negative on the first
+    colour's side), points within 2 r_max of the top/bottom border left out; ratio to expected."""
+    H, W = lab.shape[:2]
+    w, h = domain_of(lab)
+    unit = fs.r_max(n, w * h)
+    pixel = w / W
+    width = stripe_px * pixel
+    edges = np.arange(1, W // stripe_px) * width
+    x, y = xy[:, 0], xy[:, 1]
+    keep = (y > 2 * unit) & (y < h - 2 * unit)
+    x = x[keep]
+    nearest = edges[np.argmin(np.abs(x[:, None] - edges[None]), axis=1)]
+    first_colour = (np.floor(x / width).astype(int) % 2) == 0
+    signed = np.where(first_colour, -np.abs(x - nearest), np.abs(x - nearest))
+    per_unit = n / (w * h) * (h - 4 * unit) * len(edges)
+    return fs.strip_profile(signed, per_unit, unit, -reach, reach)
+
+
+def case_edges(seeds: list[int], pairs: list[str], keep: dict) -> dict:
+    presets = load_palette().preset_ab()
+    n, stripe_px = 4096, 16
+    out: dict = {}
+    for other in pairs:
+        lab = stripe_lab(presets["blue"], presets[other], stripe_px)
+        rows = []
+        for seed in seeds:
+            xy, seconds = run_synthesis(lab, n, seed)
+            centres, ratio = edge_profile(xy, lab, stripe_px, n)
+            poisson = np.random.default_rng(4000 + seed).random((n, 2)) * domain_of(lab)
+            _, ratio_poisson = edge_profile(poisson, lab, stripe_px, n)
+            near = np.abs(centres) < 3.0
+            w, h = domain_of(lab)
+            _, border = fs.border_profile(xy, (w, h), n)
+            rows.append({"seed": seed, "synth_seconds": seconds,
+                         "edge_min": float(ratio[near].min()), "edge_max": float(ratio[near].max()),
+                         "poisson_edge_min": float(ratio_poisson[near].min()), "poisson_edge_max": float(ratio_poisson[near].max()),
+                         "border_min": float(border.min()), "border_max": float(border.max()),
+                         "profile": [r4(v) for v in ratio]})
+            print(f"edges blue|{other} seed {seed}: min {ratio[near].min():.3f} max {ratio[near].max():.3f} "
+                  f"(poisson {ratio_poisson[near].min():.3f}-{ratio_poisson[near].max():.3f}) profile {np.round(ratio, 2).tolist()}", flush=True)
+            if seed == seeds[0]:
+                keep[f"edge_{other}"] = {"synth": xy, "domain": domain_of(lab), "lab": lab}
+        profile = np.median(np.array([row["profile"] for row in rows]), axis=0)
+        out[f"blue|{other}"] = {"median": medians(rows), "per_seed": rows, "strip_centres_r_max": [r4(c) for c in centres],
+                                "median_profile": [r4(v) for v in profile],
+                                "setup": f"64x128 map, stripes {stripe_px} px (~{stripe_px / 128 / fs.r_max(n, 0.5):.1f} r_max) alternating blue "
+                                         f"and {other}, L = 50, n = {n}; 7 edges; strips 0.5 r_max wide, negative = blue side; "
+                                         "min/max over strips within 3 r_max of the edge; points within 2 r_max of top/bottom left out"}
+    return out
+
+
+def case_logo(seeds: list[int]) -> dict:
+    from synthesis.mapio import read_map
+
+    lab = np.asarray(read_map(REPO / "examples" / "logo.tif").lab, np.float64)
+    domain = domain_of(lab)
+    rows = []
+    for seed in seeds:
+        xy, seconds = run_synthesis(lab, None, seed)
+        intensity = fs.Intensity(density_of(lab), domain, len(xy))
+        nn = fs.nn_stats(xy, intensity)
+        exact = int(np.sum(fs.nearest_neighbours(xy, domain) < 1e-5))
+        lec = fs.empty_circles(xy, intensity)
+        rows.append({"seed": seed, "n": len(xy), "synth_seconds": seconds, "stacked_fraction": nn["stacked_fraction"],
+                     "stacked_count": nn["stacked_count"], "within_1e-5": exact,
+                     "largest_empty_circle": lec["largest"], "holes_over_1": lec["holes"]})
+        print(f"logo seed {seed}: {json.dumps({k: r4(v) for k, v in rows[-1].items()})}", flush=True)
+    return {"median": medians(rows), "per_seed": rows}
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    c = np.asarray(c, np.float64) / 255.0
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def photo_lab(name: str, ab: tuple[float, float]) -> np.ndarray:
+    """L = 100 Y with Y the linear luminance (sRGB decoded; 0.2126, 0.7152, 0.0722), constant ab."""
+    from skimage import data
+
+    image = getattr(data, name)()
+    if image.ndim == 2:
+        Y = srgb_to_linear(image)
+    else:
+        lin = srgb_to_linear(image[..., :3])
+        Y = lin @ np.array([0.2126, 0.7152, 0.0722])
+    lab = np.zeros(Y.shape + (3,), np.float32)
+    lab[..., 0] = 100.0 * Y
+    lab[..., 1:] = ab
+    return lab
+
+
+def case_photos(seeds: list[int], names: list[str], keep: dict) -> dict:
+    blue = load_palette().preset_ab()["blue"]
+    out: dict = {}
+    for name in names:
+        lab = photo_lab(name, blue)
+        domain = domain_of(lab)
+        density = density_of(np.asarray(LabMap(lab).lab, np.float64))  # after the map's own clipping
+        intensity = fs.Intensity(density, domain, N_PHOTO)
+        rows = []
+        for seed in seeds:
+            xy, seconds = run_synthesis(lab, N_PHOTO, seed)
+            start = time.perf_counter()
+            lloyd = fs.lloyd_stipple(density, N_PHOTO, domain, iterations=LLOYD_ITERATIONS, seed=seed)
+            lloyd_seconds = time.perf_counter() - start
+            row = {"seed": seed, "synth_seconds": seconds, "lloyd_seconds": lloyd_seconds}
+            for label, pts in (("synth", xy), ("lloyd", lloyd)):
+                lec = fs.empty_circles(pts, intensity)
+                nn = fs.nn_stats(pts, intensity)
+                row.update({f"{label}_psnr_1": fs.density_psnr(pts, density, domain, 1.0),
+                            f"{label}_psnr_2": fs.density_psnr(pts, density, domain, 2.0),
+                            f"{label}_largest_empty_circle": lec["largest"], f"{label}_holes_over_1": lec["holes"],
+                            f"{label}_stacked_fraction": nn["stacked_fraction"]})
+            row["psnr_1_vs_lloyd"] = row["synth_psnr_1"] - row["lloyd_psnr_1"]
+            row["psnr_2_vs_lloyd"] = row["synth_psnr_2"] - row["lloyd_psnr_2"]
+            rows.append(row)
+            print(f"photo {name} seed {seed}: {json.dumps({k: r4(v) for k, v in row.items()})}", flush=True)
+            if seed == seeds[0]:
+                keep[f"photo_{name}"] = {"synth": xy, "lloyd": lloyd, "domain": domain, "density": density}
+        out[name] = {"median": medians(rows), "per_seed": rows,
+                     "setup": f"{lab.shape[1]}x{lab.shape[0]} map, L = 100 Y (linear luminance), blue ab, n = {N_PHOTO}; "
+                              f"Lloyd: {LLOYD_ITERATIONS} iterations on the pixel grid from a stratified start"}
+    return out
+
+
+LLOYD_ITERATIONS = 60
+
+
+# --------------------------------------------------------------------------- targets
+
+
+def target_rows(results: dict) -> list[dict]:
+    rows: list[dict] = []
+
+    def add(target, measured, criterion, ok, reference=None):
+        rows.append({"target": target, "measured": r4(measured) if isinstance(measured, (int, float)) else measured,
+                     "reference": reference, "criterion": criterion,
+                     "pass": None if ok is None else bool(ok)})
+
+    def within(x, lo, hi):
+        return None if x is None else lo <= x <= hi
+
+    const = results.get("constant")
+    if const:
+        refs = const["references"]["median"]
+        for name in PRESETS:
+            m = const[name]["median"]
+            if name in ("blue", "step"):
+                add(f"stacked fraction, constant {name}", m["stacked_fraction"], "== 0", m["stacked_fraction"] == 0,
+                    f"generator {m['gen_stacked_fraction']:.4f}")
+            else:
+                limit = 1.5 * m["gen_stacked_fraction"]
+                add(f"stacked fraction, constant {name}", m["stacked_fraction"], f"<= 1.5 x generator = {limit:.4f}",
+                    m["stacked_fraction"] <= limit, f"generator {m['gen_stacked_fraction']:.4f}")
+        m = const["blue"]["median"]
+        add("blue: min NN (r_max)", m["min_nn"], ">= 0.6", m["min_nn"] >= 0.6,
+            f"generator {m['gen_min_nn']:.3f}, PoissonDisk {refs['poisson_disk_min_nn']:.3f}")
+        add("blue: largest empty circle, constant map (r_max)", m["largest_empty_circle"], "<= 1.2",
+            m["largest_empty_circle"] <= 1.2,
+            f"generator {m['gen_largest_empty_circle']:.3f}, PoissonDisk {refs['poisson_disk_largest_empty_circle']:.3f}, "
+            f"Poisson {refs['poisson_largest_empty_circle']:.3f}")
+        for name in PRESETS:
+            m = const[name]["median"]
+            add(f"{name}: fine-PCF distance to generator / generator-generator", m["pcf_ratio"], "<= 1.5", m["pcf_ratio"] <= 1.5,
+                f"d(synth,gen) {m['pcf_dist_synth_gen']:.3f}, d(gen,gen) {m['pcf_dist_gen_gen']:.3f}")
+        for name in PRESETS:
+            m = const[name]["median"]
+            add(f"{name}: NN CV / generator's", m["nn_cv_ratio"], "0.85-1.15", within(m["nn_cv_ratio"], 0.85, 1.15),
+                f"synth {m['nn_cv']:.3f}, generator {m['gen_nn_cv']:.3f}")
+        for name in PRESETS:
+            m = const[name]["median"]
+            ratio = m.get("objective_gen_over_synth")
+            add(f"{name}: objective validity, generator loss / synthesised loss", ratio, "<= 2",
+                None if ratio is None else ratio <= 2,
+                None if m.get("objective_synth") is None else f"synth {m['objective_synth']:.4g}, generator {m['objective_gen']:.4g}")
+        for name in PRESETS:
+            m = const[name]["median"]
+            add(f"{name}: border strips (0-3 r_max) min..max / expected", f"{m['border_min']:.3f}..{m['border_max']:.3f}",
+                "within 0.75-1.3", within(m["border_min"], 0.75, 1.3) and within(m["border_max"], 0.75, 1.3),
+                f"generator window {m['gen_border_min']:.2f}..{m['gen_border_max']:.2f}"
+                + (f"; PoissonDisk {refs['poisson_disk_border_min']:.2f}..{refs['poisson_disk_border_max']:.2f}" if name in ("blue", "step") else ""))
+    edges = results.get("edges")
+    if edges:
+        for key, value in edges.items():
+            if not isinstance(value, dict):
+                continue
+            m = value["median"]
+            add(f"{key} edge strips (within 3 r_max) min..max / expected", f"{m['edge_min']:.3f}..{m['edge_max']:.3f}",
+                "within 0.75-1.3", within(m["edge_min"], 0.75, 1.3) and within(m["edge_max"], 0.75, 1.3),
+                f"Poisson {m['poisson_edge_min']:.2f}..{m['poisson_edge_max']:.2f}")
+    logo = results.get("logo")
+    if logo:
+        m = logo["median"]
+        add("logo (default n): stacked fraction", m["stacked_fraction"], "<= 0.005", m["stacked_fraction"] <= 0.005,
+            f"{m['stacked_count']:.0f} of {m['n']:.0f} points; {m['within_1e-5']:.0f} within 1e-5")
+    photos = results.get("photos")
+    if photos:
+        for name, value in photos.items():
+            if not isinstance(value, dict):
+                continue
+            m = value["median"]
+            for blur in (1, 2):
+                d = m[f"psnr_{blur}_vs_lloyd"]
+                add(f"{name}: density PSNR, blur {blur} spacing(s), synth - Lloyd (dB)", d, ">= -3", d >= -3,
+                    f"synth {m[f'synth_psnr_{blur}']:.2f} dB, Lloyd {m[f'lloyd_psnr_{blur}']:.2f} dB")
+            add(f"{name}: largest empty circle, density >= 0.15 (local r_max)", m["synth_largest_empty_circle"], "<= 1.2",
+                m["synth_largest_empty_circle"] <= 1.2,
+                f"holes > 1 r_max: {m['synth_holes_over_1']:.0f}; Lloyd {m['lloyd_largest_empty_circle']:.3f} "
+                f"({m['lloyd_holes_over_1']:.0f} holes)")
+    return rows
+
+
+def print_table(rows: list[dict]) -> None:
+    width = max(len(row["target"]) for row in rows)
+    print(f"\n{'target':<{width}}  {'measured':>14}  {'criterion':<28}  {'pass':<5}  reference")
+    for row in rows:
+        verdict = "-" if row["pass"] is None else ("PASS" if row["pass"] else "FAIL")
+        measured = row["measured"] if isinstance(row["measured"], str) else f"{row['measured']}"
+        print(f"{row['target']:<{width}}  {measured:>14}  {row['criterion']:<28}  {verdict:<5}  {row['reference'] or ''}")
+    passed = sum(1 for row in rows if row["pass"])
+    print(f"\n{passed} of {sum(1 for row in rows if row['pass'] is not None)} targets met", flush=True)
+
+
+# --------------------------------------------------------------------------- contact sheet
+
+
+def _render(xy, window, size, spacing_px, stacked=None, circle=None, density=None):
+    """Dots of ``xy`` within ``window`` = (x0, y0, side) at ``size`` px; stacked points red."""
+    from PIL import Image, ImageDraw
+
+    x0, y0, side = window
+    scale = size / side
+    if density is not None:
+        image = Image.new("RGB", (size, size), "white")
+    else:
+        image = Image.new("RGB", (size, size), "white")
+    draw = ImageDraw.Draw(image)
+    radius = max(1.2, 0.09 * spacing_px)
+    px = (xy - [x0, y0]) * scale
+    inside = (px[:, 0] > -radius) & (px[:, 0] < size + radius) & (px[:, 1] > -radius) & (px[:, 1] < size + radius)
+    for i in np.nonzero(inside)[0]:
+        colour = (220, 0, 0) if stacked is not None and stacked[i] else (0, 0, 0)
+        cx, cy = px[i]
+        draw.ellipse([cx - radius, cy - radius, cx + radius, cy + radius], fill=colour)
+    if stacked is not None:
+        for i in np.nonzero(inside & stacked)[0]:
+            cx, cy = px[i]
+            draw.ellipse([cx - 3 * radius, cy - 3 * radius, cx + 3 * radius, cy + 3 * radius], outline=(220, 0, 0), width=1)
+    if circle is not None:
+        (cx, cy), r = circle
+        cx, cy, r = (cx - x0) * scale, (cy - y0) * scale, r * scale
+        draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=(0, 90, 255), width=2)
+    draw.rectangle([0, 0, size - 1, size - 1], outline=(160, 160, 160))
+    return image
+
+
+def contact_sheet(keep: dict, path: Path) -> Path | None:
+    from PIL import Image, ImageDraw
+
+    tiles: list[tuple[str, object]] = []
+    size = 420
+    for name in PRESETS:
+        entry = keep.get(f"constant_{name}")
+        if entry is None:
+            continue
+        n = len(entry["synth"])
+        unit = fs.r_max(n, 1.0)
+        window = (0.0, 0.0, 0.22)  # top-left corner: shows the border too
+        for label in ("synth", "gen"):
+            pts = entry[label]
+            periodic = label == "gen"
+            intensity = fs.Intensity.constant(n)
+            nn = fs.nearest_neighbours(pts, (1.0, 1.0), periodic) / unit
+            lec = fs.empty_circles(pts, intensity, periodic=periodic)
+            circle = (lec["largest_at"], lec["largest_radius_abs"]) if lec["largest_at"] else None
+            if circle and not (window[0] <= circle[0][0] <= window[0] + window[2] and window[1] <= circle[0][1] <= window[1] + window[2]):
+                circle = None
+            tiles.append((f"{name} {'synthesised' if label == 'synth' else 'generator'} (top-left 0.22; red = stacked)",
+                          _render(pts, window, size, unit * size / window[2], nn < fs.STACKED, circle)))
+    for other in ("red", "white"):
+        entry = keep.get(f"edge_{other}")
+        if entry is None:
+            continue
+        n = len(entry["synth"])
+        w, h = entry["domain"]
+        unit = fs.r_max(n, w * h)
+        window = (0.125 - 0.1, 0.14, 0.2)  # centred on the first edge, x = 0.125 (blue left, other right)
+        nn = fs.nearest_neighbours(entry["synth"], (w, h)) / unit
+        tiles.append((f"blue (left) | {other} (right) edge at centre, synthesised", _render(entry["synth"], window, size, unit * size / window[2], nn < fs.STACKED)))
+    for name in ("camera", "astronaut"):
+        entry = keep.get(f"photo_{name}")
+        if entry is None:
+            continue
+        n = len(entry["synth"])
+        window = (0.3, 0.15, 0.22) if name == "camera" else (0.35, 0.1, 0.22)
+        intensity = fs.Intensity(entry["density"], entry["domain"], n)
+        for label in ("synth", "lloyd"):
+            pts = entry[label]
+            local = intensity.local_r_max(pts)
+            nn = fs.nearest_neighbours(pts, entry["domain"]) / local
+            spacing = math.sqrt(1.0 / n) * size / window[2]
+            tiles.append((f"{name} {'synthesised' if label == 'synth' else 'weighted Lloyd'} (crop 0.22)",
+                          _render(pts, window, size, spacing, nn < fs.STACKED)))
+    if not tiles:
+        return None
+    columns = 2
+    rows = (len(tiles) + 1) // 2
+    label_h = 18
+    sheet = Image.new("RGB", (columns * (size + 10) + 10, rows * (size + label_h + 10) + 10), (235, 235, 235))
+    draw = ImageDraw.Draw(sheet)
+    for k, (label, tile) in enumerate(tiles):
+        r, c = divmod(k, columns)
+        x, y = 10 + c * (size + 10), 10 + r * (size + label_h + 10)
+        draw.text((x, y), label, fill=(0, 0, 0))
+        sheet.paste(tile, (x, y + label_h))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sheet.save(path)
+    return path
+
+
+# --------------------------------------------------------------------------- main
+
+
+def code_identity() -> dict:
+    import synthesis
+
+    where = Path(synthesis.__file__).resolve().parent
+    info = {"synthesis_path": str(where)}
+    try:
+        info["commit"] = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True, text=True,
+                                        check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain", "--", "."], capture_output=True, text=True).stdout
+        info["synthesis_dirty"] = bool(dirty.strip())
+    except Exception:  # noqa: BLE001 - not a git checkout
+        info["commit"] = None
+    return info
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="1 seed, edges blue|red only, camera only")
+    parser.add_argument("--only", action="append", choices=CASES, help="run only this case (repeatable)")
+    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default 3; 1 with --quick)")
+    parser.add_argument("--out", type=Path, default=None, help="results JSON (default out/bench/fidelity.json, "
+                                                                "fidelity_quick.json for --quick/--only)")
+    parser.add_argument("--sheet", type=Path, default=RESULTS_DIR / "fidelity_sheet.png", help="contact sheet PNG")
+    parser.add_argument("--label", default=None, help="a name for the code measured (recorded in the results)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    seeds = list(range(args.seeds if args.seeds else (1 if args.quick else 3)))
+    cases = args.only or CASES
+    out_path = args.out or RESULTS_DIR / ("fidelity_quick.json" if (args.quick or args.only) else "fidelity.json")
+    results: dict = {"meta": {"label": args.label, "seeds": seeds, "quick": args.quick, "cases": cases,
+                              "torch_threads": args.threads, "code": code_identity(),
+                              "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                                          "load_average_1min_start": round(os.getloadavg()[0], 2)},
+                              "definitions": DEFINITIONS}}
+    keep: dict = {}
+    start_all = time.perf_counter()
+    for case in cases:
+        start = time.perf_counter()
+        if case == "constant":
+            results[case] = case_constant(seeds, keep)
+        elif case == "edges":
+            results[case] = case_edges(seeds, ["red"] if args.quick else ["red", "white"], keep)
+        elif case == "logo":
+            results[case] = case_logo(seeds)
+        elif case == "photos":
+            results[case] = case_photos(seeds, ["camera"] if args.quick else ["camera", "astronaut"], keep)
+        results[case]["bench_seconds"] = round(time.perf_counter() - start, 1)
+        print(f"== {case}: {results[case]['bench_seconds']} s", flush=True)
+    results["targets"] = target_rows(results)
+    results["meta"]["machine"]["load_average_1min_end"] = round(os.getloadavg()[0], 2)
+    results["meta"]["bench_seconds"] = round(time.perf_counter() - start_all, 1)
+    sheet = contact_sheet(keep, args.sheet)
+    results["meta"]["contact_sheet"] = str(sheet) if sheet else None
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text(json.dumps(results, indent=1, default=_jsonable) + "\n")
+    print_table(results["targets"])
+    print(f"results: {out_path}" + (f"; contact sheet: {sheet}" if sheet else ""))
+
+
+def _jsonable(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(type(value))
+
+
+DEFINITIONS = {
+    "r_max": "2 sqrt(A / (2 sqrt(3) n)); local r_max = 2 / sqrt(2 sqrt(3) lambda(x)), lambda(x) = n density(x) / (mean density A), "
+             "density = 1 - L/100 at the pixel containing x",
+    "fine_pcf": "translation edge correction (Ohser; torus: minimum image), Gaussian kernel sigma 0.05 r_max, annulus normalisation "
+                "(finite, unbiased from r = 0), r = 0..2.5 r_max in 101 steps",
+    "pcf_ratio": "RMS over r of (g_synth - g_gen_A) / RMS of (g_gen_A - g_gen_B); generators on the torus, synthesis on the bounded map",
+    "stacked_fraction": "share of points whose NN distance < 0.05 local r_max",
+    "min_nn": "smallest NN distance in local r_max",
+    "nn_cv": "std/mean of NN distances (local r_max), points whose NN is shorter than their distance to the border (minus sampling)",
+    "largest_empty_circle": "Delaunay circumcircle, equivalent radius sqrt(E sqrt(3)/(2 pi)) with E the expected count in the disk "
+                            "(= R / r_max at constant density); only circles inside the domain whose disk has density >= 0.15 "
+                            "everywhere; holes_over_1 = distinct circles with equivalent radius > 1",
+    "edge_strips": "counts in strips 0.5 r_max wide against the signed distance to the nearest stripe edge / expected, "
+                   "min and max over strips within 3 r_max",
+    "border_strips": "counts in rings 0.5 r_max wide at distance 0-3 r_max from the border / expected (n ring area / A)",
+    "density_psnr": "point counts per pixel and target density, both mean 1, blurred by a Gaussian of 1 or 2 mean spacings sqrt(A/n) "
+                    "(zero padding outside the domain); 10 log10(max(target)^2 / MSE)",
+    "objective_validity": "synthesiser's own final_loss of a generator realisation / of the synthesised output (same map, same n)",
+}
+
+
+if __name__ == "__main__":
+    main()
