@@ -5,26 +5,35 @@ skipped because its output exists; or failed, with a one-line reason) for the
 caller to report. Outputs are written atomically, named after the input
 (``NAME.txt`` -> ``NAME.tif``; maps, channel-PNG triplets included, -> ``NAME.txt``).
 
-* :func:`convert_points`: worker processes read and rasterise point files
-  (:func:`export.runtime.pattern_raster`); this process runs the network on
-  batches of rasters of one size (:class:`~export.runtime.OnnxModel`), crops each
-  output to its domain (:func:`~export.runtime.output_to_map`) and writes a CIELAB TIFF.
+* :func:`convert_points`: each worker process loads the network once
+  (:class:`~export.runtime.OnnxModel`), then takes chunks of point files: reads
+  and rasterises each (:func:`export.runtime.pattern_raster`), runs it through
+  the network, crops the output to its domain
+  (:func:`~export.runtime.output_to_map`) and writes a CIELAB TIFF. The network
+  is nearly all the work (about 80 ms of one core per 20k-point file at the
+  default scale, a 640 x 640 px raster), so N workers on N idle cores go about
+  N times as fast as one.
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
-  (:func:`synthesis.synthesize.synthesize`).
+  (:func:`synthesis.synthesize.synthesize`), one map per task.
 
-Workers are spawned processes (no forked torch or ONNX Runtime thread state);
-``workers <= 1`` works in the calling process.
+Workers are spawned processes (no forked ONNX Runtime or numba thread state)
+that ignore Ctrl+C: the parent terminates them at once on any exception, Ctrl+C
+included, and removes the temporary files they leave; ``workers <= 1`` works in
+the calling process.
 """
 
 from __future__ import annotations
 
 import functools
 import itertools
+import math
 import multiprocessing
 import os
+import queue
+import signal
+import threading
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -32,8 +41,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
+from synthesis.atomic import remove_stale_temporaries
+from synthesis.conventions import POINTS_PER_INK
 from synthesis.errors import PatternshopError, PatternshopWarning
-from synthesis.labmap import POINTS_PER_INK
 from synthesis.points import NPY_SUFFIX, TEXT_SUFFIXES, read_points
 
 if TYPE_CHECKING:
@@ -124,112 +134,157 @@ def _plan(sources: Sequence[PathLike], out_dir: PathLike, suffix: str, overwrite
     return jobs, known
 
 
-def _run(function: Callable, jobs: list, workers: int, window: int, initializer: Callable | None = None,
-         initargs: tuple = ()) -> Iterator:
-    """``function(job)`` for every job, in order of completion: in ``workers`` spawned processes with at most
-    ``window`` jobs pending, or in this process (after ``initializer(*initargs)``) when workers <= 1 or one job."""
-    workers = min(workers, len(jobs))
+def _start_worker(initializer: Callable | None, initargs: tuple) -> None:
+    """Worker start: leave Ctrl+C to the parent (it stops the pool), then the caller's initializer."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # tqdm's default lock is a named multiprocessing semaphore: a terminated worker would leave it to the
+    # resource tracker, which complains on stderr; a worker's progress bars (disabled) need no cross-process lock
+    tqdm.set_lock(threading.RLock())
+    if initializer is not None:
+        initializer(*initargs)
+
+
+def _run(function: Callable, tasks: list, workers: int, window: int, out_dir: Path,
+         initializer: Callable | None = None, initargs: tuple = ()) -> Iterator:
+    """``function(task)`` for every task, in order of completion: in ``workers`` spawned processes (each started once,
+    with ``initializer(*initargs)``) with at most ``window`` tasks pending, or in this process when workers <= 1.
+
+    An exception here (Ctrl+C included) terminates the workers at once; the temporary files of files they were
+    writing are removed from ``out_dir``.
+    """
+    workers = min(workers, len(tasks))
     if workers <= 1:
         if initializer is not None:
             initializer(*initargs)
-        yield from map(function, jobs)
+        yield from map(function, tasks)
         return
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer, initargs=initargs) as pool:
-        queue = iter(jobs)
-        running = {pool.submit(function, job) for job in itertools.islice(queue, max(window, workers))}
-        while running:
-            done, running = wait(running, return_when=FIRST_COMPLETED)
-            for future in done:
-                running.update(pool.submit(function, job) for job in itertools.islice(queue, 1))
-                yield future.result()
+    done: queue.SimpleQueue = queue.SimpleQueue()
+    pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_start_worker, initargs=(initializer, initargs))
+    try:
+        pending = 0
+        for task in itertools.chain(tasks, [None] * window):
+            if task is not None:
+                pool.apply_async(function, (task,), callback=done.put, error_callback=done.put)
+                pending += 1
+            while pending and (pending >= window or task is None):
+                result = done.get()
+                pending -= 1
+                if isinstance(result, BaseException):
+                    raise result
+                yield result
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+        remove_stale_temporaries(out_dir)
+
+
+def _check_share(job: _Job, needed: float, work: str, share: float) -> None:
+    """Fail one file (not the run) whose estimated memory exceeds its process's share of the limit."""
+    if needed > share:
+        raise PatternshopError(f"{job.source}: {work} needs about {needed / 1e9:.3g} GB, over this process's share "
+                               f"{share / 1e9:.3g} GB of --max-memory-gb")
 
 
 # --- points -> maps -----------------------------------------------------------
-def _load_points(raster_size: int, trained_points_per_ink: float | None, points_per_ink: float,
-                 job: _Job) -> tuple[_Job, np.ndarray | str, tuple[float, float], float, int]:
-    """(job, raster (S, S) or the error, domain, pixels per unit, point count) of one point file."""
-    from export.runtime import pattern_raster
+_WORKER_MODEL: OnnxModel | None = None  # the network of a convert_points worker process, loaded once
 
-    try:
-        points = read_points(job.source)
-        raster, scale = pattern_raster(points, raster_size, trained_points_per_ink, points_per_ink)
-    except (PatternshopError, OSError) as exc:
-        return job, _one_line(exc), (1.0, 1.0), 0.0, 0
-    return job, raster, points.domain, scale, len(points)
+
+def _load_model(path: Path, threads: int) -> None:
+    global _WORKER_MODEL
+    from export.runtime import OnnxModel
+
+    _WORKER_MODEL = OnnxModel(path, threads=threads)
+
+
+@dataclass(frozen=True)
+class _InferenceSettings:
+    points_per_ink: float
+    bits: int
+    memory_limit: float  # bytes one process may use for one file
+
+
+def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxModel | None = None) -> list[tuple[int, FileResult]]:
+    """Infer and write the map of each point file of a chunk -> (job index, result) pairs.
+
+    One raster per network run: on the CPU a batch of 8 took as long per raster or longer (68-89 ms vs 68-74 ms).
+    """
+    from export.runtime import map_width, output_to_map, pattern_raster, raster_scale, saturation_warning
+    from synthesis.mapio import write_tiff
+    from synthesis.resources import inference_bytes
+
+    model = model if model is not None else _WORKER_MODEL
+    results: list[tuple[int, FileResult]] = []
+    for job in chunk:
+        notes: tuple[str, ...] = ()
+        try:
+            points = read_points(job.source)
+            (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink,
+                                                            settings.points_per_ink)
+            width = map_width(points.domain, model, None)
+            _check_share(job, inference_bytes(side, width * max(1, round(width * h / w))), f"a {side}x{side} px raster",
+                         settings.memory_limit)
+            message = saturation_warning(len(points), settings.points_per_ink)
+            notes = (f"{job.source}: {message}",) if message else ()
+            raster, scale = pattern_raster(points, model.raster_size, model.points_per_ink, settings.points_per_ink)
+            output = model.predict(raster[None, None])[0]
+            write_tiff(output_to_map(output, points.domain, scale, width), job.output, settings.bits)
+            results.append((job.index, FileResult(job.source, job.output, WRITTEN, None, notes)))
+        except (PatternshopError, OSError) as exc:
+            results.append((job.index, FileResult(job.source, job.output, FAILED, _one_line(exc), notes)))
+    return results
 
 
 def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxModel, batch_size: int = 8,
                    workers: int = 2, bits: int = 16, overwrite: bool = False, progress: bool = False,
-                   points_per_ink: float = POINTS_PER_INK) -> list[FileResult]:
+                   points_per_ink: float = POINTS_PER_INK, memory_limit: float = math.inf) -> list[FileResult]:
     """Infer a map for each point file into ``out_dir/NAME.tif`` (``bits``-bit CIELAB); one result per source, in order.
 
     Args:
-        model: the :class:`~export.runtime.OnnxModel` (its thread count applies to the batches).
-        batch_size: rasters per network run (consecutive files whose rasters have one size).
-        workers: processes reading and rasterising the point files.
+        model: the :class:`~export.runtime.OnnxModel` (each worker loads its file with its thread count).
+        batch_size: point files per worker task.
+        workers: processes, each doing the whole work for its files (1: this process).
         overwrite: replace existing outputs (default: skip their inputs).
         points_per_ink: points of a fully dark map at the patterns' scale (see :func:`export.runtime.points_to_map`).
+        memory_limit: bytes all workers together may use; a file whose estimate exceeds its worker's share fails.
     """
-    from export.runtime import map_width, output_to_map, saturation_warning
-    from synthesis.mapio import write_tiff
-
     if batch_size < 1 or bits not in (8, 16):
         raise PatternshopError(f"batch size must be >= 1 and bits 8 or 16, got {batch_size} and {bits}")
     jobs, results = _plan(sources, out_dir, ".tif", overwrite)
-    batch: list[tuple[_Job, np.ndarray, tuple[float, float], float, int]] = []
+    processes = max(1, min(workers, math.ceil(len(jobs) / batch_size)))
+    settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes)
+    chunks = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
+    if processes <= 1:
+        convert, initializer, initargs = functools.partial(_convert_chunk, settings, model=model), None, ()
+    else:
+        convert, initializer, initargs = functools.partial(_convert_chunk, settings), _load_model, (model.path, model.threads)
     with tqdm(total=len(sources), initial=len(results), desc="convert", unit="file", disable=not progress) as bar:
-        def run_batch() -> None:
-            maps = model.predict(np.stack([raster for _, raster, _, _, _ in batch])[:, None])
-            for (job, _, domain, scale, count), output in zip(batch, maps, strict=True):
-                message = saturation_warning(count, points_per_ink)
-                notes = (f"{job.source}: {message}",) if message else ()
-                try:
-                    write_tiff(output_to_map(output, domain, scale, map_width(domain, model, None)), job.output, bits)
-                    results[job.index] = FileResult(job.source, job.output, WRITTEN, None, notes)
-                except (PatternshopError, OSError) as exc:
-                    results[job.index] = FileResult(job.source, job.output, FAILED, _one_line(exc), notes)
-                bar.update()
-            batch.clear()
-
-        loader = functools.partial(_load_points, model.raster_size, model.points_per_ink, points_per_ink)
-        for job, raster, domain, scale, count in _run(loader, jobs, workers, window=2 * workers + batch_size):
-            if isinstance(raster, str):
-                results[job.index] = FileResult(job.source, job.output, FAILED, raster)
-                bar.update()
-                continue
-            if batch and raster.shape != batch[0][1].shape:
-                run_batch()
-            batch.append((job, raster, domain, scale, count))
-            if len(batch) == batch_size:
-                run_batch()
-        if batch:
-            run_batch()
+        for chunk_results in _run(convert, chunks, processes, 2 * processes, Path(out_dir), initializer, initargs):
+            results.update(chunk_results)
+            bar.update(len(chunk_results))
     return [results[i] for i in range(len(sources))]
 
 
 # --- maps -> points -----------------------------------------------------------
-def _set_torch_threads(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
-
-
-def _resynthesize(settings: SynthesisSettings, job: _Job) -> tuple[int, FileResult]:
+def _resynthesize(settings: SynthesisSettings, threads: int, memory_limit: float, job: _Job) -> tuple[int, FileResult]:
     """Synthesise one map into its point file -> (job index, result); warnings come back in the result."""
-    from synthesis.mapio import read_map
+    from synthesis.mapio import map_size, read_map
     from synthesis.palette import load_palette
     from synthesis.points import write_points
-    from synthesis.synthesize import POINTS_PER_INK, point_count, synthesize
+    from synthesis.resources import synthesis_bytes
+    from synthesis.synthesize import point_count, synthesize
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PatternshopWarning)
         try:
+            width, height = map_size(job.source)
+            _check_share(job, synthesis_bytes(width * height, settings.points or 0), f"a {width}x{height} px map", memory_limit)
             lab_map = read_map(job.source)
             points_per_ink = settings.points_per_ink if settings.points_per_ink is not None else POINTS_PER_INK
             n = settings.points if settings.points is not None else point_count(lab_map, points_per_ink)
+            _check_share(job, synthesis_bytes(width * height, n), f"{n:,} points", memory_limit)
             result = synthesize(lab_map, n=n, palette=load_palette(settings.palette), schedule=settings.schedule,
-                                iterations=settings.iterations, seed=settings.seed)
+                                iterations=settings.iterations, seed=settings.seed, threads=threads)
             write_points(result.points, job.output)
             status, error = WRITTEN, None
         except (PatternshopError, OSError) as exc:
@@ -239,26 +294,23 @@ def _resynthesize(settings: SynthesisSettings, job: _Job) -> tuple[int, FileResu
 
 
 def resynthesize_maps(sources: Sequence[PathLike], out_dir: PathLike, settings: SynthesisSettings = SynthesisSettings(),
-                      workers: int = 2, threads: int = 1, overwrite: bool = False, progress: bool = False) -> list[FileResult]:
+                      workers: int = 2, threads: int = 1, overwrite: bool = False, progress: bool = False,
+                      memory_limit: float = math.inf) -> list[FileResult]:
     """Synthesise points for each map into ``out_dir/NAME.txt``; one result per source, in order.
 
     Args:
         settings: point count, schedule, seed (each map uses the same seed) and palette.
-        workers: synthesising processes, each with ``threads`` torch threads.
+        workers: synthesising processes (1: this process), each with ``threads`` threads.
         overwrite: replace existing outputs (default: skip their inputs).
+        memory_limit: bytes all workers together may use; a map whose estimate exceeds its worker's share fails.
     """
-    import torch
-
     if threads < 1:
         raise PatternshopError(f"threads must be at least 1, got {threads}")
     jobs, results = _plan(sources, out_dir, ".txt", overwrite)
-    caller_threads = torch.get_num_threads()
-    try:
-        with tqdm(total=len(sources), initial=len(results), desc="resynthesize", unit="map", disable=not progress) as bar:
-            for index, result in _run(functools.partial(_resynthesize, settings), jobs, workers, window=2 * workers,
-                                      initializer=_set_torch_threads, initargs=(threads,)):
-                results[index] = result
-                bar.update()
-    finally:  # in-process work set this process's torch threads
-        torch.set_num_threads(caller_threads)
+    processes = max(1, min(workers, len(jobs)))
+    synthesise = functools.partial(_resynthesize, settings, threads, memory_limit / processes)
+    with tqdm(total=len(sources), initial=len(results), desc="resynthesize", unit="map", disable=not progress) as bar:
+        for index, result in _run(synthesise, jobs, processes, 2 * processes, Path(out_dir)):
+            results[index] = result
+            bar.update()
     return [results[i] for i in range(len(sources))]

@@ -58,6 +58,7 @@ class OnnxModel:
         path: the model file.
         metadata: the model's metadata (see :mod:`export.onnx`), values JSON-decoded.
         raster_size: the training rasters' side (256); :meth:`predict` takes any multiple of 64.
+        threads: ONNX Runtime intra-op threads.
 
     Raises:
         PatternshopError: the file is missing, unreadable, or not a Patternshop model.
@@ -68,6 +69,7 @@ class OnnxModel:
             raise PatternshopError(f"no default model at {DEFAULT_MODEL}; train one with 'python train.py' and export it "
                                    f"with 'patternshop export runs/procedural/checkpoints/best.ckpt {DEFAULT_MODEL}', or pass --model")
         self.path = Path(path) if path is not None else DEFAULT_MODEL
+        self.threads = threads
         if not self.path.is_file():
             raise PatternshopError(f"{self.path}: no such model file")
         if threads < 1:
