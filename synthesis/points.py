@@ -222,7 +222,7 @@ def _parse_npy(path: Path) -> np.ndarray:
     with open(path, "rb") as handle:
         magic = handle.read(len(_NPY_MAGIC))
     if magic != _NPY_MAGIC and not magic.startswith(_ZIP_MAGIC):  # np.load would try pickle and talk of allow_pickle
-        raise PointFileError(f"{path}: not a .npy file (no NumPy header; a text point file needs .txt or .csv)")
+        raise PointFileError(f"{path}: not a readable .npy file (no NumPy header; a text point file needs .txt or .csv)")
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:

@@ -18,7 +18,13 @@ form from an independent start) and shrink to 0 where the target is white
 noise (the independent start already is a true sample). Pair lists, windows
 and the fields at the points are refreshed every ``refresh`` iterations.
 Points leaving the domain are mirrored back in, momentum reversed (a border is
-a mirror, not a wall that collects points).
+a mirror, not a wall that collects points). Every point stays within a leash
+of ``leash`` local spacings (``x free_step`` where the target is not regular)
+of its start: the start matches the density at every scale (stratified), and
+the leash stops the local rearrangement that makes the texture from turning
+into a drift that loses it (camera, 20k points, density PSNR at a blur of 2
+spacings: 35.9 dB at the start, 27.1 dB after 250 unleashed iterations,
+32.0 dB with the leash; the weighted Lloyd stippler 32.1 dB).
 
 One schedule, ``fast`` (the paper's 5,000-iteration schedule of jittered
 Monte-Carlo centres measured worse at 12x the cost and is gone).
@@ -49,9 +55,10 @@ class Schedule:
     step: float  # initial step, in units of the local spacing, where the target is regular (a hard core)
     final_step: float
     free_step: float  # step factor where the target is not regular (Poisson, clustered): points travel further
+    leash: float  # how far a point may move from its start, in local spacings (x free_step where not regular)
 
 
-SCHEDULES = {"fast": Schedule("fast", iterations=250, refresh=10, step=0.05, final_step=0.01, free_step=3.0)}
+SCHEDULES = {"fast": Schedule("fast", iterations=250, refresh=10, step=0.05, final_step=0.01, free_step=3.0, leash=0.7)}
 
 
 @dataclass
@@ -166,17 +173,20 @@ def synthesize(
     fields = MapFields.build(lab_map, n, palette, guide=guide)
     xy = initial_points(lab_map, n, rng, fields)
     windows, denominators = WindowSampler(fields), DenominatorTracker(fields)
+    start_xy = xy.copy()
     first, second = np.zeros_like(xy), 0.0
     beta1, beta2 = 0.9, 0.999
     setup = time.perf_counter() - start
     losses: list[float] = []
-    objective = step_length = None
+    objective = step_length = leash = None
     bar = tqdm(total=plan.iterations, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
     for step in range(plan.iterations):
         if objective is None or step % plan.refresh == 0:
             hood = find_neighbourhoods(fields, xy, windows.draw(rng), denominators)
             objective = FastObjective(hood)
-            step_length = (hood.spacing * hood.structure * (1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)))[:, None]
+            freedom = 1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)
+            step_length = (hood.spacing * hood.structure * freedom)[:, None]
+            leash = (plan.leash * hood.spacing * freedom)[:, None]
         loss, gradient = objective(xy)
         losses.append(loss)
         first *= beta1
@@ -187,6 +197,8 @@ def synthesize(
         update = (first / (1 - beta1 ** (step + 1))) / (np.sqrt(second / (1 - beta2 ** (step + 1))) + 1e-30)
         xy -= rate * step_length * update
         first[reflect(xy, fields.domain)] *= -1.0  # a mirror reverses the momentum too
+        away = xy - start_xy
+        xy -= away * (1.0 - np.minimum(1.0, leash / np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)))
         if on_iteration is not None:
             on_iteration(step, xy)
         bar.set_postfix(loss=f"{loss:.4g}", refresh=False)
