@@ -66,7 +66,7 @@ def load_generator(checkpoint_or_module: PathLike | nn.Module) -> nn.Module:
         raise PatternshopError(f"{path}: no such checkpoint")
     with open(path, "rb") as handle:
         if handle.read(4) != b"PK\x03\x04":  # torch.save writes a zip archive; torch.load would give advice on weights_only
-            raise PatternshopError(f"{path}: not a checkpoint (a Lightning .ckpt is a zip archive written by torch.save)")
+            raise PatternshopError(f"{path}: not a Pix2PixModule checkpoint (a Lightning .ckpt is a zip archive written by torch.save)")
     try:
         return Pix2PixModule.load_from_checkpoint(path, map_location="cpu").generator
     except (pickle.UnpicklingError, KeyError, RuntimeError, EOFError, ValueError, TypeError, AttributeError) as exc:

@@ -74,9 +74,9 @@ def run_split(args: argparse.Namespace) -> None:
 
 
 def run_join(args: argparse.Namespace) -> None:
-    from synthesis.mapio import TIFF_SUFFIXES, read_channels, write_tiff
+    from synthesis.mapio import TIFF_SUFFIXES, channel_paths, read_channels, write_tiff
 
     output = check_output(args.output, suffixes=TIFF_SUFFIXES)
-    check_map_input(args, args.channels)
+    check_map_input(args, channel_paths(args.channels)[0])
     write_tiff(read_channels(args.channels), output, bits=args.bits)
     print(f"wrote {output} ({args.bits}-bit CIELAB)", file=sys.stderr)
