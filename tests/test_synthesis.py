@@ -181,6 +181,15 @@ def test_white_target_keeps_the_independent_sample():
     assert np.abs(result.points.xy - start).max() < 0.05 * r_max(800)
 
 
+def test_points_stay_on_their_leash(blue_result):
+    lab_map = preset_map("blue")
+    fields = MapFields.build(lab_map, 1500, load_palette())
+    start = initial_points(lab_map, 1500, np.random.default_rng(3), fields)
+    moved = np.linalg.norm(blue_result.points.xy - start, axis=1)
+    assert moved.max() <= 0.7 * r_max(1500) * 1.02  # blue: regular target, leash 0.7 spacings
+    assert np.median(moved) > 0.1 * r_max(1500)  # ... and they did move
+
+
 def test_clusters_form_for_the_red_preset():
     result = synthesize(preset_map("red"), n=1200, seed=0)
     generated = stationary_pcf(generate("red", 1200, 0))
