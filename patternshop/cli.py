@@ -13,6 +13,7 @@ exceptions are bugs: one line and exit status 1. ``--debug`` shows tracebacks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
@@ -20,7 +21,7 @@ import warnings
 from collections.abc import Sequence
 
 from patternshop import __version__
-from patternshop.commands import add_max_memory_option, apply_threads
+from patternshop.commands import add_max_memory_option, thread_limit
 
 COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette", "patternshop.commands.synthesize",
                    "patternshop.commands.network", "patternshop.commands.convert", "patternshop.commands.edit",
@@ -91,10 +92,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.simplefilter("always", PatternshopWarning)
         if not args.debug:
             warnings.showwarning = _show_warning
-        if "threads" in args:
-            apply_threads(args.threads)
         try:
-            return int(args.func(args) or 0)
+            with thread_limit(args.threads) if "threads" in args else contextlib.nullcontext():
+                return int(args.func(args) or 0)
         except BrokenPipeError:  # e.g. `patternshop analyze --json x | head`: the reader left
             sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - keep the interpreter from complaining at exit
             return EXIT_BROKEN_PIPE
@@ -102,6 +102,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.debug:
                 raise
             print(f"patternshop {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+            return EXIT_USER_ERROR
+        except MemoryError as exc:  # an estimate was too low: still the user's input size, not a bug
+            if args.debug:
+                raise
+            print(f"patternshop {args.command}: error: out of memory ({_one_line(exc) or 'no details'}): use smaller inputs",
+                  file=sys.stderr)
             return EXIT_USER_ERROR
         except KeyboardInterrupt:
             print(f"patternshop {args.command}: interrupted", file=sys.stderr)

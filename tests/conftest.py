@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+import os
 
-import numpy as np
-import pytest
+for _variable in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ[_variable] = "1"  # tests run single-threaded (torch reads OMP_NUM_THREADS): set before anything loads
 
-from patternshop import cli
-from synthesis.labmap import LabMap
-from synthesis.mapio import write_tiff
+from pathlib import Path  # noqa: E402 - after the thread variables
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from patternshop import cli  # noqa: E402
+from synthesis.labmap import LabMap  # noqa: E402
+from synthesis.mapio import write_tiff  # noqa: E402
 
 
 def random_map(height: int, width: int, seed: int = 0) -> LabMap:
@@ -38,3 +43,4 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, s
         status = int(exc.code or 0)
     out, err = capsys.readouterr()
     return status, out, err
+

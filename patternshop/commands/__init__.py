@@ -8,9 +8,11 @@ estimate against ``--max-memory-gb``, and ``--threads``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 from synthesis import resources
@@ -90,19 +92,36 @@ def add_max_memory_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_threads_option(parser: argparse.ArgumentParser) -> None:
-    """``--threads`` (compute commands), applied by :func:`apply_threads` before the command runs."""
+    """``--threads`` (compute commands); ``main`` runs the command inside :func:`thread_limit`."""
     parser.add_argument("--threads", type=positive_int, default=1, metavar="N", help=THREADS_HELP)
 
 
-def apply_threads(threads: int) -> None:
-    """Use ``threads`` CPU threads in this process: OpenMP/BLAS/numba variables (read at import), torch and numba if loaded."""
+@contextlib.contextmanager
+def thread_limit(threads: int) -> Iterator[None]:
+    """Use ``threads`` CPU threads inside the block: OpenMP/BLAS/numba variables (read when those libraries load),
+    and torch and numba if already loaded; the previous settings come back after it (``main`` may run in-process)."""
+    saved_variables = {variable: os.environ.get(variable) for variable in _THREAD_VARIABLES}
+    torch, numba = sys.modules.get("torch"), sys.modules.get("numba")
+    saved_torch = torch.get_num_threads() if torch is not None else None
+    saved_numba = numba.get_num_threads() if numba is not None else None
     for variable in _THREAD_VARIABLES:
         os.environ[variable] = str(threads)
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(threads)
-    if "numba" in sys.modules:
-        numba = sys.modules["numba"]
+    if torch is not None:
+        torch.set_num_threads(threads)
+    if numba is not None:
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        yield
+    finally:
+        for variable, value in saved_variables.items():
+            if value is None:
+                os.environ.pop(variable, None)
+            else:
+                os.environ[variable] = value
+        if saved_torch is not None:
+            torch.set_num_threads(saved_torch)
+        if saved_numba is not None:
+            numba.set_num_threads(saved_numba)
 
 
 def check_memory(args: argparse.Namespace, needed_bytes: float, work: str) -> None:
