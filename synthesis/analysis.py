@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 
+from synthesis.errors import PatternshopError
 from synthesis.palette import Palette, hue_chroma
 from synthesis.pcf import pcf_radii, r_max, stationary_pcf
 from synthesis.points import PointSet
@@ -33,14 +34,33 @@ def radial_spectrum(points: PointSet) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(bins, dtype=np.float64), power
 
 
+DEGENERATE_SHARE = 0.5  # a pattern with more than this share of (nearly) coincident points has no correlation to decode
+COINCIDENT = 0.05  # in units of r_max: the generators' clustered presets have 4 % of points this close, not 50 %
+
+
 def analyze_points(points: PointSet, palette: Palette) -> dict:
-    """PCF, spectrum, decoded colour and nearest preset of a stationary pattern (JSON-ready dict)."""
+    """PCF, spectrum, decoded colour and nearest preset of a stationary pattern (JSON-ready dict).
+
+    A degenerate pattern (more than :data:`DEGENERATE_SHARE` of its points within
+    :data:`COINCIDENT` r_max of another) is an error: any colour decoded from it
+    would be a confident answer to a question it cannot answer.
+    """
+    from scipy.spatial import cKDTree
+
+    w, h = points.domain
+    if len(points) >= 2:
+        distance, _ = cKDTree(points.xy).query(points.xy, k=2)
+        coincident = int(np.sum(distance[:, 1] < COINCIDENT * r_max(len(points), w * h)))
+        if coincident > DEGENERATE_SHARE * len(points):
+            raise PatternshopError(
+                f"{coincident} of {len(points)} points lie on top of another point (closer than {COINCIDENT} r_max): "
+                "the pattern is degenerate and has no correlation colour to decode"
+            )
     radii = pcf_radii()
     pcf = stationary_pcf(points.xy, points.domain, periodic=False, radii=radii)
     frequency, power = radial_spectrum(points)
     a, b = palette.decode(points.xy, points.domain)
     hue, chroma = hue_chroma(a, b)
-    w, h = points.domain
     return {
         "n": len(points),
         "domain": [w, h],

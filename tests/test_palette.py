@@ -186,3 +186,14 @@ def test_cli_palette_needs_an_output(capsys):
 
     assert cli.main(["palette"]) == 2
     assert "give an output" in capsys.readouterr().err
+
+
+def test_analyze_refuses_a_degenerate_pattern(tmp_path, capsys):
+    from patternshop import cli
+    from synthesis.points import PointSet, write_points
+
+    points = tmp_path / "same.txt"
+    write_points(PointSet(np.tile([[0.5, 0.5]], (1000, 1))), points)
+    assert cli.main(["analyze", str(points), "--json"]) == 2
+    err = capsys.readouterr().err
+    assert "1000 of 1000 points lie on top of another" in err and len(err.strip().splitlines()) == 1
