@@ -122,27 +122,35 @@ def stationary_pcf(
     are processed in blocks of :data:`CENTRE_CHUNK`.
     """
     radii = pcf_radii() if radii is None else radii
-    points = np.asarray(points, np.float64)
-    n = len(points)
-    w, h = domain
+    n, w, h = len(points), *domain
     spacing = r_max(n, w * h)
     reach = neighbour_cutoff(radii) * spacing
-    if periodic:
-        wrapped = np.mod(points, [w, h])
-        wrapped[wrapped >= [w, h]] = 0.0
-        tree, centres = cKDTree(wrapped, boxsize=[w, h]), wrapped
-    else:
-        tree = cKDTree(points)
-        inside = np.all((points >= reach) & (points <= np.array([w, h]) - reach), axis=1)
-        centres = points[inside]
-        if len(centres) < 10:
-            raise PatternshopError(f"only {len(centres)} of {n} points lie far enough from the border to estimate a PCF")
+    tree, centres = _stationary_centres(points, domain, periodic, reach)
     counts = np.zeros(len(radii))
     for start in range(0, len(centres), CENTRE_CHUNK):
         distance, _ = neighbours_within(tree, centres[start:start + CENTRE_CHUNK], reach)
         counts += tent_counts(distance[:, 1:] / spacing, None, radii)  # column 0: the centre itself
     intensity = (n - 1) / (w * h)
     return counts / (len(centres) * intensity * spacing**2 * uniform_expectation(radii))
+
+
+def _stationary_centres(points: np.ndarray, domain: tuple[float, float], periodic: bool,
+                        reach: float) -> tuple[cKDTree, np.ndarray]:
+    """Tree over points (n, 2) and the centres (C, 2) whose neighbourhood within ``reach`` is complete.
+
+    Periodic: all points of the wrapped pattern on the torus. Otherwise minus
+    sampling: the points at least ``reach`` from every border.
+    """
+    points = np.asarray(points, np.float64)
+    w, h = domain
+    if periodic:
+        wrapped = np.mod(points, [w, h])
+        wrapped[wrapped >= [w, h]] = 0.0
+        return cKDTree(wrapped, boxsize=[w, h]), wrapped
+    centres = points[np.all((points >= reach) & (points <= np.array([w, h]) - reach), axis=1)]
+    if len(centres) < 10:
+        raise PatternshopError(f"only {len(centres)} of {len(points)} points lie far enough from the border to estimate a PCF")
+    return cKDTree(points), centres
 
 
 def count_dispersion(points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = True,
@@ -157,20 +165,10 @@ def count_dispersion(points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0
     ``[0, w] x [0, h]``; borders as in :func:`stationary_pcf`.
     """
     radii = pcf_radii() if radii is None else radii
-    points = np.asarray(points, np.float64)
-    n = len(points)
-    w, h = domain
+    n, w, h = len(points), *domain
     spacing = r_max(n, w * h)
     reach = neighbour_cutoff(radii) * spacing
-    if periodic:
-        wrapped = np.mod(points, [w, h])
-        wrapped[wrapped >= [w, h]] = 0.0
-        tree, centres = cKDTree(wrapped, boxsize=[w, h]), wrapped
-    else:
-        tree = cKDTree(points)
-        centres = points[np.all((points >= reach) & (points <= np.array([w, h]) - reach), axis=1)]
-        if len(centres) < 10:
-            raise PatternshopError(f"only {len(centres)} of {n} points lie far enough from the border to measure dispersion")
+    tree, centres = _stationary_centres(points, domain, periodic, reach)
     counts = []
     width, m = float(radii[1] - radii[0]), len(radii)
     for start in range(0, len(centres), CENTRE_CHUNK):
