@@ -130,6 +130,8 @@ class FastObjective:
         self.back_cumulative = np.empty((n, m))
         self.part = np.empty((n, m))
         self.force = np.empty((len(hood.neighbours), 2))
+        self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each: faster than einsum per step
+        self.slope_y = np.ascontiguousarray(hood.expected_slope[..., 1])
         self.grad = np.empty((n, 2))
 
     def __call__(self, xy: np.ndarray, gradient: bool = True) -> tuple[float, np.ndarray | None]:
@@ -139,7 +141,8 @@ class FastObjective:
         _pair_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected,
                      self.excess, self.cumulative)
         if len(hood.sloped):  # expected counts that move with the point (near borders and edges)
-            shift = np.einsum("kjd,kd->kj", hood.expected_slope, xy[hood.sloped] - hood.anchor[hood.sloped])
+            moved = xy[hood.sloped] - hood.anchor[hood.sloped]
+            shift = self.slope_x * moved[:, :1] + self.slope_y * moved[:, 1:]
             self.excess[hood.sloped] -= shift
             self.cumulative[hood.sloped] -= np.cumsum(shift, axis=1)
         loss = 0.0
@@ -165,7 +168,9 @@ class FastObjective:
         _forces(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, self.back, self.force, self.grad)
         _collect_forces(hood.neighbour_offsets, hood.by_neighbour, self.force, self.grad)
         if len(hood.sloped):
-            self.grad[hood.sloped] -= np.einsum("kj,kjd->kd", self.back[hood.sloped], hood.expected_slope)
+            back = self.back[hood.sloped]
+            self.grad[hood.sloped, 0] -= (back * self.slope_x).sum(axis=1)
+            self.grad[hood.sloped, 1] -= (back * self.slope_y).sum(axis=1)
             self.grad[hood.sloped] += hood.variance_force
         return loss, self.grad
 
