@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from synthesis.fields import DenominatorTracker, MapFields, guide_similarity
+from synthesis.fields import DenominatorTracker, MapFields, guide_similarity, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff, neighbour_lists
@@ -214,19 +214,22 @@ class WindowSampler:
 def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.ndarray, expected: np.ndarray,
              variance: np.ndarray, centres: np.ndarray) -> Windows:
     n = tree.n
-    at = fields.at(centres, denominator=False)
-    reach = scale.radius * at["spacing"].astype(np.float64)
+    reach = scale.radius * sample_grid(fields.spacing, centres, fields.side_px)[:, 0].astype(np.float64)
     offsets, members, distance = neighbour_lists(tree, centres, reach)
     members = members.astype(np.int32)
     owners = _owners(offsets)
     weights = window_taper(distance / reach[owners])
     if fields.guide:
-        weights = weights * guide_similarity(latent[members], at["latent"].astype(np.float64)[owners])
+        centre_latent = sample_grid(fields.latent, centres, fields.side_px).astype(np.float64)
+        weights = weights * guide_similarity(latent[members], centre_latent[owners])
     by_member, member_offsets = _transpose(members, n)
     windows = Windows(scale, offsets, members, weights, by_member, member_offsets, np.empty(0))
     if scale.cumulative:
         squared = window_squares(variance, windows)
-        factor = CUMULATIVE_VARIANCE[0] + (CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0) * (fields.radii + (fields.radii[1] - fields.radii[0]))
+        # dead-zone windows need the true spread (it sets the zone); quadratic ones only a weight per radius, kept flat
+        # so that the large radii, whose counts vary most, still count (they carry a blue pattern's second shell)
+        growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
+        factor = CUMULATIVE_VARIANCE[0] + growth * (fields.radii + (fields.radii[1] - fields.radii[0]))
     else:
         squared = window_squares(expected, windows)
         factor = BIN_VARIANCE

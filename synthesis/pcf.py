@@ -31,7 +31,7 @@ from synthesis.errors import PatternshopError
 PCF_BINS = 52
 BIN_WIDTH = 0.05  # in units of r_max: radii 0, 0.05, ..., 2.55
 CENTRE_CHUNK = 16384  # centres per block in stationary_pcf: bounds memory at (chunk, k) temporaries
-FIRST_NEIGHBOURS = 48  # k of the first k-NN query; rows still full within the cutoff are asked again with 2k
+FIRST_NEIGHBOURS = 48  # k of the first k-NN query; centres with more neighbours within reach get a radius query
 
 
 def r_max(n: float | np.ndarray, area: float = 1.0) -> float | np.ndarray:
@@ -53,23 +53,6 @@ def _width(radii: np.ndarray) -> float:
     return float(radii[1] - radii[0])
 
 
-def tent_counts(u: np.ndarray, weight: np.ndarray | None, radii: np.ndarray) -> np.ndarray:
-    """Tent-kernel counts (m,) of normalised distances u (any shape), each with ``weight`` (same shape; None = 1).
-
-    Distances at or beyond :func:`neighbour_cutoff` (and inf) count nothing.
-    """
-    width, m = _width(radii), len(radii)
-    t = np.asarray(u, np.float64).reshape(-1) / width
-    w = np.ones_like(t) if weight is None else np.asarray(weight, np.float64).reshape(-1)
-    keep = t < m
-    t, w = t[keep], w[keep]
-    lower = np.floor(t).astype(np.int64)
-    frac = t - lower
-    counts = np.bincount(lower, w * (1 - frac), minlength=m + 1)
-    counts += np.bincount(lower + 1, w * frac, minlength=m + 1)
-    return counts[:m]
-
-
 def uniform_expectation(radii: np.ndarray) -> np.ndarray:
     """(m,) tent counts a unit-intensity Poisson pattern gives around a point, per r_max^2, unbounded domain.
 
@@ -80,31 +63,6 @@ def uniform_expectation(radii: np.ndarray) -> np.ndarray:
     expectation = 2.0 * math.pi * radii * width
     expectation[0] = math.pi * width**2 / 3.0
     return expectation
-
-
-def neighbours_within(tree: cKDTree, centres: np.ndarray, reach: np.ndarray | float,
-                      k: int = FIRST_NEIGHBOURS) -> tuple[np.ndarray, np.ndarray]:
-    """Every tree point within ``reach`` (scalar or (C,)) of each centre (C, 2), the centre itself included.
-
-    Returns distances and indices (C, K), padded with inf and ``tree.n``; K grows
-    (doubling k) until no row is cut short, so clustered patterns lose no pairs.
-    """
-    reach = np.broadcast_to(np.asarray(reach, np.float64), (len(centres),))
-    k = min(k, tree.n)
-    distance, index = tree.query(centres, k=k, distance_upper_bound=float(reach.max()))
-    distance, index = distance.reshape(len(centres), k), index.reshape(len(centres), k)
-    while k < tree.n:
-        short = distance[:, -1] <= reach  # the k-th neighbour is still within reach: there may be more
-        if not short.any():
-            break
-        k = min(2 * k, tree.n)
-        more_d, more_i = tree.query(centres[short], k=k, distance_upper_bound=float(reach[short].max()))
-        distance = np.pad(distance, ((0, 0), (0, k - distance.shape[1])), constant_values=np.inf)
-        index = np.pad(index, ((0, 0), (0, k - index.shape[1])), constant_values=tree.n)
-        distance[short], index[short] = more_d.reshape(-1, k), more_i.reshape(-1, k)
-    outside = distance > reach[:, None]
-    distance[outside], index[outside] = np.inf, tree.n
-    return distance, index
 
 
 def stationary_pcf(
@@ -126,10 +84,7 @@ def stationary_pcf(
     spacing = r_max(n, w * h)
     reach = neighbour_cutoff(radii) * spacing
     tree, centres = _stationary_centres(points, domain, periodic, reach)
-    counts = np.zeros(len(radii))
-    for start in range(0, len(centres), CENTRE_CHUNK):
-        distance, _ = neighbours_within(tree, centres[start:start + CENTRE_CHUNK], reach)
-        counts += tent_counts(distance[:, 1:] / spacing, None, radii)  # column 0: the centre itself
+    counts = sum(block.sum(axis=0) for block in _centre_counts(tree, centres, reach, spacing, radii))
     intensity = (n - 1) / (w * h)
     return counts / (len(centres) * intensity * spacing**2 * uniform_expectation(radii))
 
@@ -153,6 +108,30 @@ def _stationary_centres(points: np.ndarray, domain: tuple[float, float], periodi
     return cKDTree(points), centres
 
 
+def _centre_counts(tree: cKDTree, centres: np.ndarray, reach: float, spacing: float, radii: np.ndarray):  # noqa: ANN202
+    """Tent counts (c, m) around each centre, itself excluded, in blocks of :data:`CENTRE_CHUNK` centres (a generator).
+
+    Distances are in units of ``spacing``; neighbours at or beyond
+    :func:`neighbour_cutoff` count nothing.
+    """
+    width, m = _width(radii), len(radii)
+    for start in range(0, len(centres), CENTRE_CHUNK):
+        block = centres[start:start + CENTRE_CHUNK]
+        offsets, _, distance = neighbour_lists(tree, block, reach)
+        owner = np.repeat(np.arange(len(block)), np.diff(offsets))
+        t = distance / (spacing * width)
+        keep = t < m
+        owner, t = owner[keep], t[keep]
+        lower = np.floor(t).astype(np.int64)
+        frac = t - lower
+        cells = len(block) * (m + 1)
+        flat = np.bincount(owner * (m + 1) + lower, 1 - frac, minlength=cells)
+        flat += np.bincount(owner * (m + 1) + lower + 1, frac, minlength=cells)
+        counts = flat.reshape(len(block), m + 1)[:, :m]
+        counts[:, 0] -= 1.0  # every centre found itself at distance 0
+        yield counts
+
+
 def count_dispersion(points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = True,
                      radii: np.ndarray | None = None) -> np.ndarray:
     """(m,) dispersion of a stationary pattern's per-point cumulative counts: variance / (mean + 1), per radius.
@@ -169,19 +148,7 @@ def count_dispersion(points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0
     spacing = r_max(n, w * h)
     reach = neighbour_cutoff(radii) * spacing
     tree, centres = _stationary_centres(points, domain, periodic, reach)
-    counts = []
-    width, m = float(radii[1] - radii[0]), len(radii)
-    for start in range(0, len(centres), CENTRE_CHUNK):
-        distance, _ = neighbours_within(tree, centres[start:start + CENTRE_CHUNK], reach)
-        t = distance[:, 1:] / (spacing * width)
-        lower = np.floor(np.where(np.isfinite(t), t, m)).astype(np.int64)
-        frac = np.where(np.isfinite(t), t - lower, 0.0)
-        per_bin = np.zeros((len(t), m + 2))
-        rows = np.broadcast_to(np.arange(len(t))[:, None], t.shape)
-        np.add.at(per_bin, (rows, np.minimum(lower, m + 1)), np.where(lower < m, 1 - frac, 0.0))
-        np.add.at(per_bin, (rows, np.minimum(lower + 1, m + 1)), np.where(lower + 1 < m, frac, 0.0))
-        counts.append(np.cumsum(per_bin[:, :m], axis=1))
-    counts = np.concatenate(counts)
+    counts = np.cumsum(np.concatenate(list(_centre_counts(tree, centres, reach, spacing, radii))), axis=1)
     return counts.var(axis=0) / (counts.mean(axis=0) + 1.0)
 
 
@@ -218,5 +185,9 @@ def neighbour_lists(tree: cKDTree, centres: np.ndarray, reach: np.ndarray | floa
         found = np.concatenate(extra)
         owner = np.repeat(np.flatnonzero(short), counts[short])
         out_index[~from_query] = found
-        out_distance[~from_query] = np.linalg.norm(tree.data[found] - centres[owner], axis=1)
+        offset = tree.data[found] - centres[owner]
+        if tree.boxsize is not None:  # periodic tree: minimum-image distances
+            box = np.asarray(tree.boxsize)[: offset.shape[1]]
+            offset -= box * np.round(offset / box)
+        out_distance[~from_query] = np.linalg.norm(offset, axis=1)
     return offsets, out_index, out_distance

@@ -40,10 +40,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from synthesis.errors import PatternshopError
-from synthesis.fields import DenominatorTracker, MapFields
+from synthesis.fields import DenominatorTracker, MapFields, sample_grid
 from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
+
 
 @dataclass(frozen=True)
 class Schedule:
@@ -101,8 +102,8 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: Ma
     if fields is None:
         return independent
     stratified = StratifiedSampler(density, side_px, domain, n).draw(n, rng)
-    regular_s = regularity(fields.at(stratified, denominator=False)["target"], fields.radii)
-    regular_i = regularity(fields.at(independent, denominator=False)["target"], fields.radii)
+    regular_s = regularity(sample_grid(fields.target, stratified, fields.side_px), fields.radii)
+    regular_i = regularity(sample_grid(fields.target, independent, fields.side_px), fields.radii)
     chosen = np.concatenate([stratified[rng.random(n) < regular_s], independent[rng.random(n) >= regular_i]])
     if len(chosen) > n:
         return chosen[np.sort(rng.choice(len(chosen), n, replace=False))]
@@ -205,12 +206,16 @@ def synthesize(
         bar.update()
     bar.close()
     return SynthesisResult(PointSet(xy.copy(), fields.domain), plan.name, plan.iterations,
-                           time.perf_counter() - start, setup, losses, final_loss(fields, xy))
+                           time.perf_counter() - start, setup, losses, final_loss(fields, xy, denominators))
 
 
-def final_loss(fields: MapFields, xy: np.ndarray) -> float:
-    """The objective at positions xy (n, 2) with fresh pair lists (comparable across runs and patterns)."""
+def final_loss(fields: MapFields, xy: np.ndarray, denominators: DenominatorTracker | None = None) -> float:
+    """The objective at positions xy (n, 2) with fresh pair lists and fixed-seed windows (comparable across runs and patterns).
+
+    ``denominators``: the run's tracker, so only points that moved since their last evaluation are integrated again.
+    """
     from synthesis.edgepcf import find_neighbourhoods
     from synthesis.edgepcf_fast import FastObjective
 
-    return FastObjective(find_neighbourhoods(fields, xy))(np.asarray(xy, np.float64), gradient=False)[0]
+    hood = find_neighbourhoods(fields, xy, denominators=denominators)
+    return FastObjective(hood)(np.asarray(xy, np.float64), gradient=False)[0]
