@@ -114,6 +114,7 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
              "patternshop_format": FORMAT, "patternshop_version": package_version(), "exported": utc_now(),
              "raster_function": RASTER_FUNCTION, "raster_size": RASTER_SIZE,
              "generator": {"class": type(generator).__name__, "levels": getattr(generator, "levels", None),
+                           "upsample": getattr(generator, "upsample", None),
                            "parameters": sum(p.numel() for p in generator.parameters())}}
     example = torch.zeros(1, 1, RASTER_SIZE, RASTER_SIZE)
     with atomic_path(path) as tmp:

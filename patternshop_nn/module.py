@@ -32,11 +32,13 @@ class Pix2PixModule(L.LightningModule):
     def __init__(self, levels: int = 6, base_channels: int = 12, max_channels: int = 96, dropout: float = 0.0,
                  disc_channels: int = 16, disc_layers: int = 3, gan_mode: str = "vanilla", adversarial_weight: float = 0.001,
                  lr: float = 1e-4, betas: tuple[float, float] = (0.5, 0.999), lr_halving_epochs: int = 100,
-                 sample_images: int = 4) -> None:
+                 sample_images: int = 4, upsample: str = "transposed") -> None:
         super().__init__()
         self.save_hyperparameters()
         self.automatic_optimization = False
-        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout)
+        # upsample's default is the shipped checkpoint's architecture (its hparams predate the option);
+        # conf/model/pix2pix.yaml chooses resize-convolution for new runs.
+        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample)
         self.discriminator = PatchDiscriminator(4, disc_channels, disc_layers)
         init_weights(self.generator)
         init_weights(self.discriminator)

@@ -13,12 +13,27 @@ for density (1 channel) and one for correlation (2 channels), each with skip
 connections from the shared encoder; their outputs are concatenated and passed
 through a sigmoid. Widths double from ``base_channels`` per level up to
 ``max_channels``.
+
+Up-sampling (``upsample``):
+
+* ``"transposed"``: pix2pix's 4x4 stride-2 transposed convolutions. Each output
+  pixel gets other kernel taps by its parity, so every level can print a
+  2-pixel checkerboard and the stack of them a lattice of period ``2**levels``
+  (64 px): the shipped model (patternshop-procedural-v1) shows it as marks on
+  a 64-px grid in empty areas (issue 14).
+* ``"nearest"`` or ``"bilinear"``: resize-convolution (Odena, Dumoulin and Olah,
+  "Deconvolution and checkerboard artifacts", Distill 2016): up-sample by 2,
+  then a 3x3 convolution. Every output pixel sees the same kernel, so a
+  constant input gives a constant output away from the borders. The default of
+  new training runs (``conf/model/pix2pix.yaml``).
 """
 
 from __future__ import annotations
 
 import torch
 from torch import nn
+
+UPSAMPLING = ("transposed", "nearest", "bilinear")
 
 
 def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:
@@ -29,9 +44,17 @@ def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def _up(in_channels: int, out_channels: int, dropout: float) -> nn.Sequential:
-    """Decoder level: ReLU, 4x4 stride-2 transposed convolution (doubles the size), batch norm, dropout."""
-    layers: list[nn.Module] = [nn.ReLU(), nn.ConvTranspose2d(in_channels, out_channels, 4, 2, 1, bias=False), nn.BatchNorm2d(out_channels)]
+def _double(in_channels: int, out_channels: int, upsample: str, bias: bool) -> list[nn.Module]:
+    """Layers that double the size: a transposed 4x4 stride-2 convolution, or a resize then a 3x3 convolution."""
+    if upsample == "transposed":
+        return [nn.ConvTranspose2d(in_channels, out_channels, 4, 2, 1, bias=bias)]
+    align = {"align_corners": False} if upsample == "bilinear" else {}
+    return [nn.Upsample(scale_factor=2, mode=upsample, **align), nn.Conv2d(in_channels, out_channels, 3, 1, 1, bias=bias)]
+
+
+def _up(in_channels: int, out_channels: int, dropout: float, upsample: str) -> nn.Sequential:
+    """Decoder level: ReLU, doubling (:func:`_double`), batch norm, dropout."""
+    layers: list[nn.Module] = [nn.ReLU(), *_double(in_channels, out_channels, upsample, bias=False), nn.BatchNorm2d(out_channels)]
     if dropout > 0:
         layers.append(nn.Dropout(dropout))
     return nn.Sequential(*layers)
@@ -40,15 +63,15 @@ def _up(in_channels: int, out_channels: int, dropout: float) -> nn.Sequential:
 class Decoder(nn.Module):
     """One U-Net decoder branch over the encoder's features (deepest first) -> (B, out_channels, S, S) logits."""
 
-    def __init__(self, widths: list[int], out_channels: int, dropout: float) -> None:
+    def __init__(self, widths: list[int], out_channels: int, dropout: float, upsample: str = "transposed") -> None:
         super().__init__()
         # widths[k] = channels of encoder level k (k = 0 is the first, at S/2).
         levels = len(widths)
-        ups = [_up(widths[-1], widths[-2], dropout)]
+        ups = [_up(widths[-1], widths[-2], dropout, upsample)]
         for k in range(levels - 2, 0, -1):  # input: previous up output concatenated with the skip of level k
-            ups.append(_up(2 * widths[k], widths[k - 1], dropout if k >= levels - 3 else 0.0))
+            ups.append(_up(2 * widths[k], widths[k - 1], dropout if k >= levels - 3 else 0.0, upsample))
         self.ups = nn.ModuleList(ups)
-        self.head = nn.Sequential(nn.ReLU(), nn.ConvTranspose2d(2 * widths[0], out_channels, 4, 2, 1))
+        self.head = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], out_channels, upsample, bias=True))
 
     def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
         x = self.ups[0](features[-1])
@@ -64,19 +87,24 @@ class DualBranchUNet(nn.Module):
         levels: down-/up-sampling levels (paper: 6); the raster side must be a multiple of ``2**levels``.
         base_channels: channels after the first level; doubled per level up to ``max_channels``.
         dropout: dropout in the three deepest decoder levels (pix2pix's noise), 0 to disable.
+        upsample: the decoders' up-sampling, one of :data:`UPSAMPLING` (see module docstring); "transposed"
+            builds the shipped model's architecture, whose recorded config does not name it.
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
-                 dropout: float = 0.0) -> None:
+                 dropout: float = 0.0, upsample: str = "transposed") -> None:
         super().__init__()
         if levels < 2:
             raise ValueError(f"levels must be at least 2, got {levels}")
+        if upsample not in UPSAMPLING:
+            raise ValueError(f"unknown up-sampling {upsample!r}; choose one of {', '.join(UPSAMPLING)}")
         widths = [min(base_channels * 2**k, max_channels) for k in range(levels)]
         self.levels = levels
+        self.upsample = upsample
         self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1)
         self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < levels - 1) for k in range(1, levels))
-        self.density = Decoder(widths, 1, dropout)
-        self.correlation = Decoder(widths, 2, dropout)
+        self.density = Decoder(widths, 1, dropout, upsample)
+        self.correlation = Decoder(widths, 2, dropout, upsample)
 
     def forward(self, raster: torch.Tensor) -> torch.Tensor:
         """(B, 1, S, S) raster in [0, 1] -> (B, 3, S, S) map in [0, 1] (L/100, z_a, z_b)."""

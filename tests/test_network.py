@@ -246,3 +246,55 @@ def test_network_output_decodes_to_lab() -> None:
     lab_map = LabMap.from_network(output)
     np.testing.assert_allclose(lab_map.L, 100 * output[0], atol=1e-4)
     np.testing.assert_allclose(lab_map.ab, 255 * output[1:].transpose(1, 2, 0) - 128, atol=1e-4)
+
+
+# --- up-sampling without a lattice (issue 14) ---------------------------------------
+def phase_locked_share(channel: np.ndarray, period: int) -> float:
+    """Share of a (H, W) channel's variance in its mean over each phase modulo ``period`` (0 for a constant)."""
+    h, w = (side // period * period for side in channel.shape)
+    tiles = channel[:h, :w].reshape(h // period, period, w // period, period)
+    variance = float(channel[:h, :w].var())
+    return float(((tiles.mean(axis=(0, 2)) - channel[:h, :w].mean()) ** 2).mean() / variance) if variance > 0 else 0.0
+
+
+@pytest.mark.parametrize("upsample", ["nearest", "bilinear"])
+def test_resize_convolution_has_no_lattice_on_a_constant_input(upsample: str) -> None:
+    """A fresh resize-convolution net maps a constant raster to a constant interior; transposed convolutions do not.
+
+    512 px: the bottleneck is 8 x 8 cells, so the central 256 x 256 px lie beyond the reach of the zero padding.
+    """
+    torch.manual_seed(0)
+    outputs = {}
+    for kind in (upsample, "transposed"):
+        net = DualBranchUNet(base_channels=4, max_channels=16, upsample=kind).eval()
+        with torch.no_grad():
+            outputs[kind] = net(torch.full((1, 1, 512, 512), 0.1))[0, :, 128:384, 128:384].numpy()
+    assert np.ptp(outputs[upsample], axis=(1, 2)).max() < 1e-6
+    locked = [phase_locked_share(channel.astype(np.float64), 64) for channel in outputs["transposed"]]
+    assert np.ptp(outputs["transposed"], axis=(1, 2)).min() > 1e-5 and min(locked) > 0.9
+
+
+def test_new_runs_use_resize_convolution_and_the_shipped_config_still_builds() -> None:
+    """conf/model's default is resize-convolution; the shipped model's recorded config builds its transposed net."""
+    from omegaconf import OmegaConf
+
+    from export.runtime import OnnxModel
+
+    assert compose_config("train", []).model.upsample == "nearest"
+    recorded = OmegaConf.to_container(OmegaConf.load(ROOT / "patternshop_nn" / "assets" / "default.config.yaml").model)
+    assert "upsample" not in recorded
+    module = Pix2PixModule(**{key: value for key, value in recorded.items() if key != "_target_"})
+    assert module.generator.upsample == "transposed"
+    shipped = OnnxModel().metadata["generator"]["parameters"]
+    assert sum(p.numel() for p in module.generator.parameters()) == shipped
+
+
+def test_resize_convolution_exports_with_dynamic_sizes(tmp_path: Path) -> None:
+    from export.onnx import export_onnx, max_abs_difference
+
+    torch.manual_seed(0)
+    net = DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest").eval()
+    props = export_onnx(net, tmp_path / "resize.onnx")
+    assert props["generator"]["upsample"] == "nearest"
+    rasters = np.random.default_rng(0).random((1, 1, 192, 192), dtype=np.float32)
+    assert max_abs_difference(net, tmp_path / "resize.onnx", rasters) <= 1e-4
