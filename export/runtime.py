@@ -21,6 +21,10 @@
    cropped to the domain, decoded (L = 100 x channel 0, a, b = 255 x channels
    1-2 - 128) and resampled to the requested width (default: 256 px on the
    long side, the training maps' resolution).
+
+:func:`infer_map` is what ``infer`` runs: the same, with the scale chosen from
+the pattern's own local density unless given, and a, b filled from the
+surroundings where too few points show correlation (:mod:`export.evidence`).
 """
 
 from __future__ import annotations
@@ -31,9 +35,12 @@ import os
 import warnings
 from pathlib import Path
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from export.edits import resize
+from export.evidence import EvidenceSummary, ScaleChoice, choose_points_per_ink, fill_thin_correlation, local_evidence, summarise
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.points import PointSet
@@ -165,16 +172,53 @@ def saturation_warning(count: int, points_per_ink: float) -> str | None:
 
 def points_to_map(points: PointSet, model: OnnxModel, width: int | None = None,
                   points_per_ink: float = POINTS_PER_INK) -> LabMap:
-    """Infer the map of a point set (see the module docstring); ``width`` in pixels (default: 256 on the long side).
+    """The network's map of a point set read at ``points_per_ink`` (see the module docstring), a, b unfilled.
 
-    ``points_per_ink``: points of a fully dark map in the pattern's own scale (the synthesiser's convention).
-    Warns (:class:`PatternshopWarning`) when the pattern holds more points than that.
+    ``width`` in pixels (default: 256 on the long side); ``points_per_ink``: points of a fully dark map in the
+    pattern's own scale (the synthesiser's convention). Warns (:class:`PatternshopWarning`) when the pattern
+    holds more points than that.
     """
-    message = saturation_warning(len(points), points_per_ink)
-    if message:
-        warnings.warn(message, PatternshopWarning, stacklevel=2)
-    raster, scale = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink)
-    return output_to_map(model.predict(raster[None, None])[0], points.domain, scale, map_width(points.domain, model, width))
+    return infer_map(points, model, width, ScaleChoice(points_per_ink, False), fill_thin=False).lab_map
+
+
+@dataclass(frozen=True)
+class Inference:
+    """What :func:`infer_map` made: the map, the scale it read the pattern at, and the correlation evidence."""
+
+    lab_map: LabMap
+    scale: ScaleChoice
+    evidence: EvidenceSummary
+
+    def report(self) -> dict:
+        return {"width": self.lab_map.width, "height": self.lab_map.height, **self.scale.report(), **self.evidence.report()}
+
+
+def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
+              fill_thin: bool = True) -> Inference:
+    """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
+
+    Args:
+        points: the pattern.
+        model: the network.
+        width: map width in pixels (default: 256 on the long side).
+        scale: the pattern's scale; None chooses it (:func:`export.evidence.choose_points_per_ink`, the
+            default :data:`POINTS_PER_INK` unless the pattern is denser). A given scale warns
+            (:class:`PatternshopWarning`) when the pattern holds more points than a fully dark map.
+        fill_thin: replace a, b where the evidence is thin by the surrounding well-observed a, b.
+    """
+    scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
+    if not scale.automatic:
+        message = saturation_warning(len(points), scale.points_per_ink)
+        if message:
+            warnings.warn(message, PatternshopWarning, stacklevel=2)
+    raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, scale.points_per_ink)
+    lab_map = output_to_map(model.predict(raster[None, None])[0], points.domain, pixels_per_unit,
+                            map_width(points.domain, model, width))
+    evidence = local_evidence(points, lab_map.L.shape, pixels_per_unit)
+    source = False
+    if fill_thin:
+        lab_map, source = fill_thin_correlation(lab_map, evidence)
+    return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source))
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

@@ -21,7 +21,10 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         description="Run the points-to-map network (ONNX Runtime, CPU) on a point file and write its map: "
         "L from the local density, a,b from the local correlation. The pattern is read at the synthesiser's "
         "scale (--points-per-ink points make a fully dark map, so 'synthesize' of the map gives back as many "
-        "points) and rasterised so that its points per pixel match the network's training; a non-square "
+        "points; without --points-per-ink, 50,000 unless the pattern is denser somewhere, then the scale at which its "
+        "densest 1% reads as full ink: the chosen scale is printed) and rasterised so that its points per pixel match "
+        "the network's training; where too few points show correlation (very light areas), a,b are filled from the "
+        "surrounding well-observed correlation and the report says how much of the map that is; a non-square "
         "domain fills the top-left of a square raster (the rest is empty) and the output is cropped back, "
         "so the map keeps the domain's aspect, 256 px on its long side unless --width is given.",
     )
@@ -33,8 +36,12 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     infer.add_argument("--domain", nargs=2, type=float, metavar=("W", "H"),
                        help="domain [0,W]x[0,H] of the points, max(W,H)=1 (default: the file's '# domain:' comment, else 1 1)")
     infer.add_argument("--width", type=positive_int, metavar="PX", help="resample the map to this width (default: 256 px on the long side)")
-    infer.add_argument("--points-per-ink", type=positive_float, default=POINTS_PER_INK, metavar="N",
-                       help=f"points of a fully dark map at the pattern's scale (default {POINTS_PER_INK}, as synthesize)")
+    infer.add_argument("--points-per-ink", type=positive_float, metavar="N",
+                       help=f"points of a fully dark map at the pattern's scale (default: {POINTS_PER_INK}, as synthesize, "
+                       "raised automatically for a pattern denser than that)")
+    infer.add_argument("--no-fill", action="store_true",
+                       help="keep the network's a,b where too few points show correlation (default: fill from the surroundings)")
+    infer.add_argument("--report", metavar="JSON", help="write a JSON report (points per ink chosen, evidence shares, ...)")
     add_threads_option(infer)
     infer.set_defaults(func=run_infer)
 
@@ -62,26 +69,40 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
 def run_infer(args: argparse.Namespace) -> None:
     output = check_map_output(args.output, args.points)
     preview = check_output(args.preview, args.points, args.output, suffixes=(".png",)) if args.preview else None
+    report_path = check_output(args.report, args.points, args.output, suffixes=(".json",)) if args.report else None
     check_point_file(args, args.points)
 
-    from export.runtime import OnnxModel, check_palette, map_width, points_to_map, raster_scale
-    from synthesis.atomic import all_or_nothing
+    from export.evidence import ScaleChoice, choose_points_per_ink
+    from export.runtime import OnnxModel, check_palette, infer_map, map_width, raster_scale
+    from synthesis.atomic import all_or_nothing, atomic_write_text
     from synthesis.mapio import write_map, write_preview
     from synthesis.points import read_points
 
     model = OnnxModel(args.model, threads=args.threads)
     check_palette(model)
     points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
-    (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink, args.points_per_ink)
+    scale = ScaleChoice(args.points_per_ink, False) if args.points_per_ink else choose_points_per_ink(points, POINTS_PER_INK)
+    (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink, scale.points_per_ink)
     width = map_width(points.domain, model, args.width)
     check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
-                 f"inferring a {width} px wide map from a {side}x{side} px raster ({args.points_per_ink:g} points per ink)")
-    lab_map = points_to_map(points, model, width=args.width, points_per_ink=args.points_per_ink)
+                 f"inferring a {width} px wide map from a {side}x{side} px raster ({scale.points_per_ink:g} points per ink)")
+    inference = infer_map(points, model, width=args.width, scale=scale, fill_thin=not args.no_fill)
+    report = {"points": args.points, "n": len(points), "model": str(model.path), "output": str(output), **inference.report()}
     with all_or_nothing():
-        write_map(lab_map, output, bits=args.bits)
+        write_map(inference.lab_map, output, bits=args.bits)
         if preview is not None:
-            write_preview(lab_map, preview)
+            write_preview(inference.lab_map, preview)
+        if report_path is not None:
+            atomic_write_text(report_path, json.dumps(report, indent=2) + "\n")
+    lab_map, evidence = inference.lab_map, inference.evidence
     print(f"wrote {output} ({lab_map.width}x{lab_map.height} px) from {len(points)} points with {model.path}", file=sys.stderr)
+    keep = (f"; pass --points-per-ink {scale.points_per_ink:.0f} to synthesize to keep the point count"
+            if scale.points_per_ink != POINTS_PER_INK else "")
+    print(f"read at {scale.describe()}{keep}", file=sys.stderr)
+    if evidence.thin_share > 0:
+        action = "filled from the surrounding correlation" if evidence.filled else "left as the network gave them"
+        print(f"{100 * evidence.thin_share:.1f}% of the map has too few points to show correlation; its a,b were {action}",
+              file=sys.stderr)
 
 
 def _card_field(text: str) -> tuple[str, object]:

@@ -1,0 +1,94 @@
+"""infer's automatic scale and correlation evidence (issue 14): export/evidence.py and `patternshop infer`."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from export.evidence import (DENSE_THRESHOLD, EVIDENCE_RADIUS_PX, ScaleChoice, choose_points_per_ink, fill_thin_correlation,
+                             local_evidence, summarise)
+from export.onnx import export_onnx
+from patternshop_nn.networks import DualBranchUNet
+from synthesis.generators import generate
+from synthesis.labmap import LabMap
+from synthesis.points import PointSet, write_points
+from tests.conftest import run_cli
+
+DEFAULT = 50_000
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("model") / "tiny.onnx"
+    export_onnx(DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest"), path, {"points_per_ink": 8000})
+    return path
+
+
+@pytest.mark.parametrize(("process", "n", "raised"), [("white", 75_000, True), ("white", 50_000, False),
+                                                      ("jitter", 50_000, False), ("white", 20_000, False)])
+def test_scale_is_raised_only_for_patterns_denser_than_full_ink(process: str, n: int, raised: bool) -> None:
+    choice = choose_points_per_ink(PointSet(generate(process, n, seed=1)), DEFAULT)
+    assert choice.automatic
+    if raised:  # the densest 1 % reads as full ink: a stationary pattern at 1.5 x full ink reads just below 1
+        assert choice.local_density_quantile > DENSE_THRESHOLD
+        assert n < choice.points_per_ink < 1.15 * n
+    else:
+        assert choice.points_per_ink == DEFAULT and choice.local_density_quantile < DENSE_THRESHOLD
+
+
+def test_scale_of_an_empty_pattern_is_the_default() -> None:
+    assert choose_points_per_ink(PointSet(np.zeros((0, 2))), DEFAULT).points_per_ink == DEFAULT
+
+
+def test_evidence_counts_points_in_the_raster_window() -> None:
+    """20,000 Poisson points read at 640 raster px per unit: pi 12^2 px x 20,000 / 640^2 points in the window."""
+    evidence = local_evidence(PointSet(generate("white", 20_000, seed=2)), (256, 256), 640.0)
+    expected = math.pi * EVIDENCE_RADIUS_PX**2 * 20_000 / 640**2
+    assert evidence[32:-32, 32:-32].mean() == pytest.approx(expected, rel=0.05)
+    assert summarise(evidence, False, False).thin_share == 0.0
+
+
+def test_thin_correlation_is_filled_from_the_surroundings() -> None:
+    """Left half well observed with (-2, -128), right half empty with another colour: the right half takes the left's."""
+    lab = np.zeros((64, 64, 3), np.float32)
+    lab[..., 0] = np.linspace(20, 99, 64)[None, :]
+    lab[:, :32, 1:] = (-2.0, -128.0)
+    lab[:, 32:, 1:] = (40.0, 40.0)
+    evidence = np.zeros((64, 64))
+    evidence[:, :32] = 50.0
+    filled, source = fill_thin_correlation(LabMap(lab), evidence)
+    assert source
+    np.testing.assert_array_equal(filled.L, LabMap(lab).L)
+    np.testing.assert_allclose(filled.ab, np.broadcast_to([-2.0, -128.0], (64, 64, 2)), atol=1e-3)
+    unchanged, source = fill_thin_correlation(LabMap(lab), np.zeros((64, 64)))
+    assert not source and np.array_equal(unchanged.lab, LabMap(lab).lab)
+    summary = summarise(evidence + np.where(np.arange(64) >= 48, 0.0, 3.0)[None, :] * (np.arange(64) >= 32), True, True)
+    assert summary.thin_share == pytest.approx(0.25) and summary.empty_share == pytest.approx(0.25)
+
+
+def test_infer_chooses_reports_and_keeps_an_override(tiny_model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    dense, sparse = tmp_path / "dense.txt", tmp_path / "sparse.txt"
+    write_points(PointSet(generate("white", 75_000, seed=3)), dense)
+    write_points(PointSet(generate("white", 2_000, seed=4)), sparse)
+    report = tmp_path / "r.json"
+    status, _, err = run_cli(["infer", str(dense), str(tmp_path / "d.tif"), "--model", str(tiny_model), "--report", str(report)], capsys)
+    assert status == 0, err
+    chosen = json.loads(report.read_text())
+    assert chosen["automatic"] and 75_000 < chosen["points_per_ink"] < 1.15 * 75_000 and chosen["n"] == 75_000
+    assert f"read at {ScaleChoice(chosen['points_per_ink'], True, chosen['local_density_quantile']).describe()}" in err
+    assert "to synthesize to keep the point count" in err and "warning" not in err
+    status, _, err = run_cli(["infer", str(dense), str(tmp_path / "g.tif"), "--model", str(tiny_model), "--points-per-ink", "60000",
+                              "--report", str(report)], capsys)
+    assert status == 0 and "60,000 points per ink (given)" in err and "saturated" in err
+    assert json.loads(report.read_text())["points_per_ink"] == 60_000
+    status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "s.tif"), "--model", str(tiny_model), "--report", str(report)], capsys)
+    assert status == 0 and "of the map has too few points to show correlation; its a,b were filled" in err
+    assert json.loads(report.read_text())["thin_evidence_share"] > 0.5
+    status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "n.tif"), "--model", str(tiny_model), "--no-fill"], capsys)
+    assert status == 0 and "left as the network gave them" in err
