@@ -42,16 +42,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from synthesis.fields import DenominatorTracker, MapFields, guide_similarity, sample_grid
+from synthesis.cells import CellGrid
+from synthesis.edgepcf_fast import expectations, row_guides, window_sums
+from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
-from synthesis.pcf import neighbour_cutoff, neighbour_lists
+from synthesis.pcf import neighbour_cutoff
 from synthesis.stratified import StratifiedSampler
+from synthesis.workspace import Workspace, scratch
 
 CUMULATIVE_VARIANCE = (1.0, 5.0)  # Var / (sum a^2 K) of a window's cumulative count at radius rho: 1 + 5 rho (Poisson, measured)
-BIN_VARIANCE = 1.3  # Var / (sum a^2 S) of a window's count per radius (Poisson, measured: each pair in two counts, tent^2)
 REGULAR_RANGE = 0.55  # radii (units of r_max) over which the target's short-range PCF measures its regularity
 POISSON_TOLERANCE = 0.1  # a target PCF within this of 1 at every radius is white noise (exemplar noise is ~0.07)
 STRUCTURE_RANGE = 0.4  # ... and from this much further on, a structured one
@@ -67,8 +68,6 @@ class WindowScale:
         points_per_window: windows per refresh = n / this (windows overlap: radius^2 > this).
         dead_zone: standardised deviations within this many standard deviations cost nothing.
         weight: the family's weight in the objective.
-        cumulative: score cumulative counts (pairs closer than each radius: every step
-            out of a hard core pays) instead of the counts per radius (the PCF's shape).
         compensation: factor of the variance compensation (see :func:`_variance_force`; measured).
     """
 
@@ -76,29 +75,26 @@ class WindowScale:
     points_per_window: float
     dead_zone: float
     weight: float
-    cumulative: bool
     compensation: float = 0.0
 
 
 # Local windows (~40 points) catch outliers (holes, stacks, broken hard cores) and leave a true
 # sample's natural variation alone; regional windows (~900 points) match the PCF's mean exactly,
 # with few enough constraints (n / 200 windows) that they cannot fit a sample's noise.
-WINDOW_SCALES = (WindowScale(radius=3.3, points_per_window=8.0, dead_zone=2.0, weight=1.0, cumulative=True),
-                 WindowScale(radius=16.0, points_per_window=200.0, dead_zone=0.0, weight=1.0, cumulative=True,
-                             compensation=2.0))
+# Both score cumulative counts (pairs closer than each radius: every step out of a hard core pays).
+WINDOW_SCALES = (WindowScale(radius=3.3, points_per_window=8.0, dead_zone=2.0, weight=1.0),
+                 WindowScale(radius=16.0, points_per_window=200.0, dead_zone=0.0, weight=1.0, compensation=2.0))
 
 
 @dataclass
 class Windows:
-    """Aggregation windows of one scale (membership lists and their transpose).
+    """Aggregation windows of one scale (membership lists).
 
     Attributes:
         scale: the :class:`WindowScale`.
         offsets: (W + 1,) int64; members of window w are ``offsets[w]:offsets[w + 1]`` ...
         members: (M,) int32 ... these points ...
         weights: (M,) float64 ... with these weights (taper x guide).
-        by_member: (M,) int64 entries sorted by point (the transposed lists) ...
-        member_offsets: (n + 1,) int64 ... with these offsets per point.
         deviation: (W, m) standard deviation of each window's cumulative count (Poisson model).
     """
 
@@ -106,8 +102,6 @@ class Windows:
     offsets: np.ndarray
     members: np.ndarray
     weights: np.ndarray
-    by_member: np.ndarray
-    member_offsets: np.ndarray
     deviation: np.ndarray
 
     @property
@@ -136,10 +130,7 @@ class Neighbourhoods:
         offsets: (n + 1,) int64; pairs of centre c are ``offsets[c]:offsets[c + 1]``.
         neighbours: (P,) int32 neighbour of each pair (within the cutoff of its centre).
         guide: (P,) float64 guidance weights H of the pairs.
-        by_neighbour: (P,) int64 pair indices sorted by neighbour (the transposed pair lists) ...
-        neighbour_offsets: (n + 1,) int64 ... with these offsets per neighbour.
         spacing: (n,) local r_max at the points.
-        dispersion: (n, m) the target's count dispersion at each point (variance model).
         expected: (n, m) target tent counts ``g D`` around each point at ``anchor`` ...
         anchor: (n, 2) ... the positions at the refresh; for points near borders and edges ...
         sloped: (K,) int64 ... (these) the expected counts change with position ...
@@ -154,10 +145,7 @@ class Neighbourhoods:
     offsets: np.ndarray
     neighbours: np.ndarray
     guide: np.ndarray
-    by_neighbour: np.ndarray
-    neighbour_offsets: np.ndarray
     spacing: np.ndarray
-    dispersion: np.ndarray
     expected: np.ndarray
     anchor: np.ndarray
     sloped: np.ndarray
@@ -186,17 +174,7 @@ def window_taper(u: np.ndarray) -> np.ndarray:
 
 def window_squares(values: np.ndarray, windows: Windows) -> np.ndarray:
     """(W, m) ``sum_c a_wc^2 values_c`` for per-point values (n, m)."""
-    from synthesis.edgepcf_fast import window_sums
-
     return window_sums(values, windows.offsets, windows.members, windows.weights**2)
-
-
-def _transpose(entries: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Entry order sorted by target (M,) and offsets (count + 1,) per target of a flat list of targets."""
-    order = np.argsort(entries, kind="stable")
-    offsets = np.zeros(count + 1, np.int64)
-    np.cumsum(np.bincount(entries, minlength=count), out=offsets[1:])
-    return order, offsets
 
 
 class WindowSampler:
@@ -211,74 +189,65 @@ class WindowSampler:
         return [self.sampler.draw(max(1, round(self.n / scale.points_per_window)), rng) for scale in WINDOW_SCALES]
 
 
-def _windows(scale: WindowScale, fields: MapFields, tree: cKDTree, latent: np.ndarray, expected: np.ndarray,
-             variance: np.ndarray, centres: np.ndarray) -> Windows:
-    n = tree.n
+def _windows(scale: WindowScale, fields: MapFields, grid: CellGrid, latent: np.ndarray, variance: np.ndarray,
+             centres: np.ndarray, workspace: Workspace, name: str) -> Windows:
     reach = scale.radius * sample_grid(fields.spacing, centres, fields.side_px)[:, 0].astype(np.float64)
-    offsets, members, distance = neighbour_lists(tree, centres, reach)
-    members = members.astype(np.int32)
-    owners = _owners(offsets)
-    weights = window_taper(distance / reach[owners])
+    offsets, members, distance = grid.query(centres, reach, workspace=workspace, name=name)
+    weights = window_taper(distance / np.repeat(reach, np.diff(offsets)))
     if fields.guide:
-        centre_latent = sample_grid(fields.latent, centres, fields.side_px).astype(np.float64)
-        weights = weights * guide_similarity(latent[members], centre_latent[owners])
-    by_member, member_offsets = _transpose(members, n)
-    windows = Windows(scale, offsets, members, weights, by_member, member_offsets, np.empty(0))
-    if scale.cumulative:
-        squared = window_squares(variance, windows)
-        # dead-zone windows need the true spread (it sets the zone); quadratic ones only a weight per radius, kept flat
-        # so that the large radii, whose counts vary most, still count (they carry a blue pattern's second shell)
-        growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
-        factor = CUMULATIVE_VARIANCE[0] + growth * (fields.radii + (fields.radii[1] - fields.radii[0]))
-    else:
-        squared = window_squares(expected, windows)
-        factor = BIN_VARIANCE
-    windows.deviation = np.sqrt(factor * squared + VARIANCE_FLOOR)
+        weights *= row_guides(latent, sample_grid(fields.latent, centres, fields.side_px), offsets, members, GUIDE_BANDWIDTH)
+    windows = Windows(scale, offsets, members, weights, np.empty(0))
+    # dead-zone windows need the true spread (it sets the zone); quadratic ones only a weight per radius, kept flat
+    # so that the large radii, whose counts vary most, still count (they carry a blue pattern's second shell)
+    growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
+    factor = CUMULATIVE_VARIANCE[0] + growth * (fields.radii + (fields.radii[1] - fields.radii[0]))
+    windows.deviation = np.sqrt(factor * window_squares(variance, windows) + VARIANCE_FLOOR)
     return windows
 
 
 def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None,
-                        denominators: DenominatorTracker | None = None) -> Neighbourhoods:
+                        denominators: DenominatorTracker | None = None, workspace: Workspace | None = None) -> Neighbourhoods:
     """Every pair within the estimator's reach (cutoff x spacing of the centre), windows, and the fields at the points.
 
     ``window_centres``: one (W, 2) array per :data:`WINDOW_SCALES` entry, where the
     windows sit; they must not depend on the pattern (default: a fixed-seed
     :class:`WindowSampler` draw; the synthesiser draws new ones at every refresh).
     ``denominators``: a tracker that recomputes only moved points (default: all computed).
+    ``workspace``: where the large arrays live (a synthesiser reuses one across refreshes:
+    the previous neighbourhoods' arrays are overwritten). Neighbour lists come from one :class:`~synthesis.cells.CellGrid` with cells of
+    the median pair reach; they run fastest on spatially sorted points.
     """
     xy = np.asarray(xy, np.float64)
     n = len(xy)
     if window_centres is None:
         window_centres = WindowSampler(fields).draw(np.random.default_rng(0))
-    at = fields.at(xy, denominator=False)
+    workspace = scratch(workspace)
+    at = fields.at(xy, denominator=False, workspace=workspace)
     denominator, sloped, slope = (denominators or DenominatorTracker(fields)).update(xy)
     spacing = at["spacing"].astype(np.float64)
     latent = at["latent"].astype(np.float64)
-    tree = cKDTree(xy)
-    offsets, neighbours, _ = neighbour_lists(tree, xy, neighbour_cutoff(fields.radii) * spacing)
-    owners = _owners(offsets)
-    others = neighbours != owners  # drop each point itself
-    offsets = np.zeros(n + 1, np.int64)
-    np.cumsum(np.bincount(owners[others], minlength=n), out=offsets[1:])
-    neighbours = neighbours[others].astype(np.int32)
-    centres = _owners(offsets)
-    guide = guide_similarity(latent[neighbours], latent[centres]) if fields.guide else np.ones(len(neighbours))
-    target = at["target"].astype(np.float64)
-    expected = target * denominator
-    dispersion = at["dispersion"].astype(np.float64)
-    variance = dispersion * (np.cumsum(expected, axis=1) + 1.0)  # per point, cumulative counts
-    windows = [_windows(scale, fields, tree, latent, expected, variance, where)
-               for scale, where in zip(WINDOW_SCALES, window_centres)]
-    by_neighbour, neighbour_offsets = _transpose(neighbours, n)
+    reach = neighbour_cutoff(fields.radii) * spacing
+    grid = CellGrid(xy, fields.domain, float(np.median(reach)))
+    offsets, neighbours, _ = grid.query(xy, reach, exclude=np.arange(n), distances=False, workspace=workspace, name="pairs")
+    guide = workspace.empty("pairs.guide", len(neighbours))
+    if fields.guide:
+        row_guides(latent, latent, offsets, neighbours, GUIDE_BANDWIDTH, out=guide)
+    else:
+        guide.fill(1.0)
+    target, dispersion = at["target"], at["dispersion"]
+    expected, variance = expectations(target, denominator, dispersion, workspace)  # variance: per point, of cumulative counts
+    windows = [_windows(scale, fields, grid, latent, variance, where, workspace, f"windows{i}")
+               for i, (scale, where) in enumerate(zip(WINDOW_SCALES, window_centres))]
     expected_slope = target[sloped][..., None] * slope
-    return Neighbourhoods(offsets, neighbours, guide, by_neighbour, neighbour_offsets, spacing, dispersion, expected, xy.copy(),
-                          sloped, expected_slope, _variance_force(windows, sloped, dispersion[sloped][..., None] * np.cumsum(expected_slope, axis=1),
-                                                                  fields.radii), windows,
-                          np.asarray(fields.radii, np.float64), regularity(at["target"], fields.radii),
-                          structure(at["target"]))
+    variance_force = _variance_force(windows, n, sloped, dispersion[sloped][..., None] * np.cumsum(expected_slope, axis=1),
+                                     fields.radii)
+    return Neighbourhoods(offsets, neighbours, guide, spacing, expected, xy.copy(), sloped, expected_slope,
+                          variance_force, windows, np.asarray(fields.radii, np.float64), regularity(target, fields.radii),
+                          structure(target))
 
 
-def _variance_force(windows: list[Windows], sloped: np.ndarray, variance_slope: np.ndarray, radii: np.ndarray) -> np.ndarray:
+def _variance_force(windows: list[Windows], n: int, sloped: np.ndarray, variance_slope: np.ndarray,
+                    radii: np.ndarray) -> np.ndarray:
     """(K, 2) gradient of the quadratic windows' variance compensation at the sloped points.
 
     A quadratic window loss has expectation ``bias^2 + Var(r)`` even at a true
@@ -291,20 +260,22 @@ def _variance_force(windows: list[Windows], sloped: np.ndarray, variance_slope: 
     deviation^2; it depends on positions only through the sloped points'
     expected counts, ``variance_slope`` (K, m, 2) = dispersion x grad K.
     """
-    from synthesis.edgepcf_fast import distribute_sums
-
     force = np.zeros((len(sloped), 2))
     if not len(sloped):
         return force
     width = radii[1] - radii[0]
     model = CUMULATIVE_VARIANCE[0] + CUMULATIVE_VARIANCE[1] * (radii + width)
+    slot = np.full(n, -1, np.int64)
+    slot[sloped] = np.arange(len(sloped))
     for family in windows:
-        if not family.scale.compensation or not family.scale.cumulative:
+        if not family.scale.compensation:
             continue
         scale = family.scale.compensation * family.scale.weight / family.deviation.size
-        per_point = distribute_sums(model / family.deviation**2, family.member_offsets, family.by_member,
-                                    family.owners, family.weights**2)
-        force -= scale * np.einsum("kj,kjd->kd", per_point[sloped], variance_slope)
+        entries = np.flatnonzero(slot[family.members] >= 0)  # only the sloped points' memberships matter
+        per_point = np.zeros((len(sloped), len(radii)))
+        np.add.at(per_point, slot[family.members[entries]],
+                  (family.weights[entries] ** 2)[:, None] * (model / family.deviation**2)[family.owners[entries]])
+        force -= scale * np.einsum("kj,kjd->kd", per_point, variance_slope)
     return force
 
 
@@ -319,7 +290,8 @@ def structure(target: np.ndarray) -> np.ndarray:
 
     A white-noise target is what the independent start already is: its points need not move.
     """
-    return np.clip((np.abs(target - 1.0).max(axis=-1) - POISSON_TOLERANCE) / STRUCTURE_RANGE, 0.0, 1.0)
+    furthest = np.maximum(target.max(axis=-1) - 1.0, 1.0 - target.min(axis=-1))  # max |g - 1| without a temporary
+    return np.clip((furthest - POISSON_TOLERANCE) / STRUCTURE_RANGE, 0.0, 1.0)
 
 
 def dead_zone(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
@@ -356,21 +328,17 @@ def objective_reference(xy: np.ndarray, hood: Neighbourhoods, gradient: bool = T
     n, m = len(xy), len(hood.radii)
     excess = pair_counts_reference(xy, hood) - expected_counts(xy, hood)
     cumulative = np.cumsum(excess, axis=1)
-    loss, back, back_cumulative = 0.0, np.zeros((n, m)), np.zeros((n, m))
+    loss, back_cumulative = 0.0, np.zeros((n, m))
     for windows in hood.windows:
         scale = windows.scale.weight / ((len(windows.offsets) - 1) * m)
-        standardised = windows.aggregate(cumulative if windows.scale.cumulative else excess) / windows.deviation
+        standardised = windows.aggregate(cumulative) / windows.deviation
         penalty, slope = dead_zone(standardised, windows.scale.dead_zone)
         loss += float(penalty.sum()) * scale
-        part = windows.distribute(slope / windows.deviation * scale, n)
-        if windows.scale.cumulative:
-            back_cumulative += part  # dL/dK (cumulative counts)
-        else:
-            back += part
+        back_cumulative += windows.distribute(slope / windows.deviation * scale, n)  # dL/dK (cumulative counts)
     loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))
     if not gradient:
         return loss, None
-    back += np.cumsum(back_cumulative[:, ::-1], axis=1)[:, ::-1]  # dL/dS = -dL/dE
+    back = np.cumsum(back_cumulative[:, ::-1], axis=1)[:, ::-1]  # dL/dS = -dL/dE
     back = np.concatenate([back, np.zeros((n, 1))], axis=1)
     centres = hood.centres
     width = hood.radii[1] - hood.radii[0]

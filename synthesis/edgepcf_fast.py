@@ -1,36 +1,58 @@
 """Fused numba kernels for the synthesis objective of :mod:`synthesis.edgepcf` (same maths, same results).
 
-Every kernel is a parallel loop that only gathers (no two threads write one
-element): pair counts by centre, window sums by window and their adjoint by
-point (through the transposed membership lists), forces by centre and then
-collected by neighbour (through the transposed pair lists). :func:`objective` must agree with
-:func:`synthesis.edgepcf.objective_reference` (tests compare them).
+One evaluation is three parallel passes over spatially sorted points:
+
+1. by centre: tent-count the pairs, subtract the expected counts (moved along
+   their slope near borders and edges) and cumulate over the radii;
+2. by window (both window families in one list): weighted sums of those
+   cumulative counts, standardised, scored with the dead zone; the loss and
+   each window's slope;
+3. by centre: gather the slopes of the windows the point belongs to
+   (transposed membership lists), integrate them back over the radii, and
+   turn them into forces on the point's pairs; forces on neighbours go to a
+   per-thread buffer (threads own contiguous runs of centres), so no two
+   threads write one element and no per-pair force is stored.
+
+Buffers are allocated once per neighbourhood refresh, never per iteration.
+:class:`FastObjective` must agree with :func:`synthesis.edgepcf.objective_reference`
+(tests compare them).
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
-from synthesis.edgepcf import Neighbourhoods, dead_zone
+from synthesis.cells import transpose
+from synthesis.workspace import Workspace, scratch
+
+if TYPE_CHECKING:
+    from synthesis.edgepcf import Neighbourhoods
 
 _JIT = {"parallel": True, "cache": True, "fastmath": False}
 
 
 @numba.njit(**_JIT)
-def _pair_counts(xy, offsets, neighbours, guide, spacing, inv_width, expected, excess, cumulative):  # pragma: no cover
-    n, m = excess.shape
+def _cumulative_excess(xy, offsets, neighbours, guide, spacing, inv_width, expected, anchor, slot, slope_x, slope_y,
+                       cumulative):  # pragma: no cover - jitted
+    n, m = cumulative.shape
     for c in numba.prange(n):
-        row = excess[c]
+        row = cumulative[c]
         for j in range(m):
             row[j] = -expected[c, j]
+        k = slot[c]
+        if k >= 0:  # expected counts that move with the point (near borders and edges)
+            mx, my = xy[c, 0] - anchor[c, 0], xy[c, 1] - anchor[c, 1]
+            for j in range(m):
+                row[j] -= slope_x[k, j] * mx + slope_y[k, j] * my
         scale = inv_width / spacing[c]
         xc, yc = xy[c, 0], xy[c, 1]
         for p in range(offsets[c], offsets[c + 1]):
-            k = neighbours[p]
-            dx, dy = xy[k, 0] - xc, xy[k, 1] - yc
+            b = neighbours[p]
+            dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
             t = math.sqrt(dx * dx + dy * dy) * scale
             if t < m:
                 j = int(t)
@@ -41,7 +63,78 @@ def _pair_counts(xy, offsets, neighbours, guide, spacing, inv_width, expected, e
         total = 0.0
         for j in range(m):
             total += row[j]
-            cumulative[c, j] = total
+            row[j] = total
+
+
+@numba.njit(**_JIT)
+def _window_slopes(cumulative, offsets, members, weights, deviation, dead, scale, slope, loss):  # pragma: no cover
+    windows, m = slope.shape
+    for w in numba.prange(windows):
+        row = slope[w]
+        for j in range(m):
+            row[j] = 0.0
+        for q in range(offsets[w], offsets[w + 1]):
+            a = weights[q]
+            c = members[q]
+            for j in range(m):
+                row[j] += a * cumulative[c, j]
+        penalty = 0.0
+        for j in range(m):
+            x = row[j] / deviation[w, j]
+            excess = abs(x) - dead[w]
+            if excess > 0.0:
+                penalty += excess * excess
+                row[j] = math.copysign(2.0 * excess, x) * scale[w] / deviation[w, j]
+            else:
+                row[j] = 0.0
+        loss[w] = penalty * scale[w]
+
+
+@numba.njit(**_JIT)
+def _gradient(xy, offsets, neighbours, guide, spacing, inv_width, point_offsets, point_window, point_weight, slope,
+              slot, slope_x, slope_y, variance_force, parts):  # pragma: no cover - jitted
+    threads, n, _ = parts.shape
+    m = slope.shape[1]
+    for t in numba.prange(threads):
+        part = parts[t]
+        part[:] = 0.0
+        back = np.empty(m + 1)
+        for c in range(t * n // threads, (t + 1) * n // threads):
+            for j in range(m + 1):
+                back[j] = 0.0
+            for e in range(point_offsets[c], point_offsets[c + 1]):
+                a = point_weight[e]
+                w = point_window[e]
+                for j in range(m):
+                    back[j] += a * slope[w, j]
+            total = 0.0  # dL/dS: the window slopes integrated back over the radii (back[m] = 0)
+            for j in range(m - 1, -1, -1):
+                total += back[j]
+                back[j] = total
+            gx, gy = 0.0, 0.0
+            k = slot[c]
+            if k >= 0:
+                for j in range(m):
+                    gx -= back[j] * slope_x[k, j]
+                    gy -= back[j] * slope_y[k, j]
+                gx += variance_force[k, 0]
+                gy += variance_force[k, 1]
+            scale = inv_width / spacing[c]
+            xc, yc = xy[c, 0], xy[c, 1]
+            for p in range(offsets[c], offsets[c + 1]):
+                b = neighbours[p]
+                dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
+                d = math.sqrt(dx * dx + dy * dy)
+                tt = d * scale
+                if tt < m and d > 0.0:
+                    j = int(tt)
+                    pull = guide[p] * (back[j + 1] - back[j]) * scale / d
+                    part[b, 0] += pull * dx
+                    part[b, 1] += pull * dy
+                    gx -= pull * dx
+                    gy -= pull * dy
+            part[c, 0] += gx
+            part[c, 1] += gy
 
 
 @numba.njit(**_JIT)
@@ -58,133 +151,106 @@ def _window_sums(values, window_offsets, members, weights, out):  # pragma: no c
 
 
 @numba.njit(**_JIT)
-def _distribute(values, member_offsets, by_member, window_of_entry, weights, out):  # pragma: no cover - jitted
-    n, m = out.shape
-    for c in numba.prange(n):
-        for j in range(m):
-            out[c, j] = 0.0
-        for q in range(member_offsets[c], member_offsets[c + 1]):
-            e = by_member[q]
-            a = weights[e]
-            w = window_of_entry[e]
-            for j in range(m):
-                out[c, j] += a * values[w, j]
+def _row_guides(latent, row_latent, offsets, members, bandwidth, out):  # pragma: no cover - jitted
+    for r in numba.prange(len(offsets) - 1):
+        za, zb = row_latent[r, 0], row_latent[r, 1]
+        for p in range(offsets[r], offsets[r + 1]):
+            da, db = latent[members[p], 0] - za, latent[members[p], 1] - zb
+            d2 = da * da + db * db
+            out[p] = math.exp(-d2 / (2.0 * bandwidth)) if d2 > 1e-20 else 1.0  # exp rounds to 1.0 there anyway
+
+
+def row_guides(latent: np.ndarray, row_latent: np.ndarray, offsets: np.ndarray, members: np.ndarray,
+               bandwidth: float, out: np.ndarray | None = None) -> np.ndarray:
+    """(E,) guidance H between each entry's point and its row: ``exp(-|latent[members[p]] - row_latent[r]|^2 / (2 bandwidth))``.
+
+    latent (n, 2) at the points, row_latent (R, 2) at the rows (centres or windows), CSR offsets (R + 1,) over members (E,);
+    ``out``: an (E,) float64 array to fill. Same values as :func:`synthesis.fields.guide_similarity`.
+    """
+    out = np.empty(len(members)) if out is None else out
+    _row_guides(np.ascontiguousarray(latent, np.float64), np.ascontiguousarray(row_latent, np.float64), offsets, members,
+                float(bandwidth), out)
+    return out
 
 
 @numba.njit(**_JIT)
-def _add_reverse_cumsum(target, cumulative):  # pragma: no cover - jitted
-    n, m = target.shape
+def _expectations(target, denominator, dispersion, expected, variance):  # pragma: no cover - jitted
+    n, m = expected.shape
     for c in numba.prange(n):
         total = 0.0
-        for j in range(m - 1, -1, -1):
-            total += cumulative[c, j]
-            target[c, j] += total
+        for j in range(m):
+            e = target[c, j] * denominator[c, j]
+            expected[c, j] = e
+            total += e
+            variance[c, j] = dispersion[c, j] * (total + 1.0)
 
 
-@numba.njit(**_JIT)
-def _forces(xy, offsets, neighbours, guide, spacing, inv_width, back, force, grad):  # pragma: no cover - jitted
-    n, m = back.shape
-    for c in numba.prange(n):
-        scale = inv_width / spacing[c]
-        xc, yc = xy[c, 0], xy[c, 1]
-        gx, gy = 0.0, 0.0
-        for p in range(offsets[c], offsets[c + 1]):
-            k = neighbours[p]
-            dx, dy = xy[k, 0] - xc, xy[k, 1] - yc
-            d = math.sqrt(dx * dx + dy * dy)
-            t = d * scale
-            fx, fy = 0.0, 0.0
-            if t < m and d > 0.0:
-                j = int(t)
-                upper = back[c, j + 1] if j + 1 < m else 0.0
-                slope = guide[p] * (upper - back[c, j]) * scale / d
-                fx, fy = slope * dx, slope * dy
-            force[p, 0], force[p, 1] = fx, fy
-            gx -= fx
-            gy -= fy
-        grad[c, 0], grad[c, 1] = gx, gy
+def expectations(target: np.ndarray, denominator: np.ndarray, dispersion: np.ndarray,
+                 workspace: Workspace | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Expected tent counts ``g D`` (n, m) and the cumulative counts' variance ``dispersion (cumsum(g D) + 1)`` (n, m), float64.
 
-
-@numba.njit(**_JIT)
-def _collect_forces(neighbour_offsets, by_neighbour, force, grad):  # pragma: no cover - jitted
-    n = grad.shape[0]
-    for k in numba.prange(n):
-        for q in range(neighbour_offsets[k], neighbour_offsets[k + 1]):
-            p = by_neighbour[q]
-            grad[k, 0] += force[p, 0]
-            grad[k, 1] += force[p, 1]
+    From (n, m) target, denominator and dispersion; into ``workspace`` buffers ``expected``, ``variance`` when given.
+    """
+    workspace = scratch(workspace)
+    expected, variance = workspace.empty("expected", denominator.shape), workspace.empty("variance", denominator.shape)
+    _expectations(target, np.ascontiguousarray(denominator, np.float64), dispersion, expected, variance)
+    return expected, variance
 
 
 class FastObjective:
-    """Objective and gradient for one neighbourhood, with buffers reused across iterations."""
+    """Objective and gradient for one neighbourhood, with buffers reused across iterations.
 
-    def __init__(self, hood: Neighbourhoods):
+    ``threads``: parallel runs of centres in the gradient pass (at most numba's thread count);
+    ``workspace``: where the buffers live (reused by the next refresh's objective).
+    """
+
+    def __init__(self, hood: Neighbourhoods, threads: int | None = None, workspace: Workspace | None = None):
+        workspace = scratch(workspace)
         self.hood = hood
         n, m = hood.expected.shape
         self.inv_width = 1.0 / float(hood.radii[1] - hood.radii[0])
-        self.owners = [windows.owners for windows in hood.windows]
-        self.sums = [np.empty((len(windows.offsets) - 1, m)) for windows in hood.windows]
-        self.excess = np.empty((n, m))
-        self.cumulative = np.empty((n, m))
-        self.back = np.empty((n, m))
-        self.back_cumulative = np.empty((n, m))
-        self.part = np.empty((n, m))
-        self.force = np.empty((len(hood.neighbours), 2))
-        self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each: faster than einsum per step
+        families = hood.windows
+        counts = [len(windows.offsets) - 1 for windows in families]
+        starts = np.cumsum([0] + [len(windows.members) for windows in families[:-1]])
+        self.offsets = np.concatenate([[0]] + [windows.offsets[1:] + start for windows, start in zip(families, starts)])
+        self.members = np.concatenate([windows.members for windows in families])
+        self.weights = np.concatenate([windows.weights for windows in families])
+        self.deviation = np.concatenate([windows.deviation for windows in families])
+        self.dead = np.concatenate([np.full(count, windows.scale.dead_zone) for windows, count in zip(families, counts)])
+        self.scale = np.concatenate([np.full(count, windows.scale.weight / (count * m)) for windows, count in zip(families, counts)])
+        order, self.point_offsets = transpose(self.members, n)
+        self.point_window = np.repeat(np.arange(len(self.offsets) - 1, dtype=np.int32), np.diff(self.offsets))[order]
+        self.point_weight = self.weights[order]
+        self.slot = np.full(n, -1, np.int32)
+        self.slot[hood.sloped] = np.arange(len(hood.sloped), dtype=np.int32)
+        self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each
         self.slope_y = np.ascontiguousarray(hood.expected_slope[..., 1])
-        self.grad = np.empty((n, 2))
+        self.cumulative = workspace.empty("objective.cumulative", (n, m))
+        self.slopes = workspace.empty("objective.slopes", (len(self.offsets) - 1, m))
+        self.losses = workspace.empty("objective.losses", len(self.offsets) - 1)
+        threads = numba.get_num_threads() if threads is None else max(1, min(threads, numba.get_num_threads()))
+        self.parts = workspace.empty("objective.parts", (threads, n, 2))
 
     def __call__(self, xy: np.ndarray, gradient: bool = True) -> tuple[float, np.ndarray | None]:
-        """Objective and gradient (n, 2) (a reused buffer: copy it to keep it) at xy (n, 2) float64."""
+        """Objective and gradient (n, 2) (a reused buffer when single-threaded: copy it to keep it) at xy (n, 2) float64."""
         hood = self.hood
-        m = self.excess.shape[1]
-        _pair_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected,
-                     self.excess, self.cumulative)
-        if len(hood.sloped):  # expected counts that move with the point (near borders and edges)
-            moved = xy[hood.sloped] - hood.anchor[hood.sloped]
-            shift = self.slope_x * moved[:, :1] + self.slope_y * moved[:, 1:]
-            self.excess[hood.sloped] -= shift
-            self.cumulative[hood.sloped] -= np.cumsum(shift, axis=1)
-        loss = 0.0
-        self.back.fill(0.0)
-        self.back_cumulative.fill(0.0)
-        for windows, owners, sums in zip(hood.windows, self.owners, self.sums):
-            counts = self.cumulative if windows.scale.cumulative else self.excess
-            _window_sums(counts, windows.offsets, windows.members, windows.weights, sums)
-            standardised = np.divide(sums, windows.deviation, out=sums)
-            penalty, slope = dead_zone(standardised, windows.scale.dead_zone)
-            scale = windows.scale.weight / (len(sums) * m)
-            loss += float(penalty.sum()) * scale
-            if gradient:
-                slope *= scale
-                slope /= windows.deviation
-                _distribute(slope, windows.member_offsets, windows.by_member, owners, windows.weights, self.part)
-                (self.back_cumulative if windows.scale.cumulative else self.back).__iadd__(self.part)
+        _cumulative_excess(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected,
+                           hood.anchor, self.slot, self.slope_x, self.slope_y, self.cumulative)
+        _window_slopes(self.cumulative, self.offsets, self.members, self.weights, self.deviation, self.dead, self.scale,
+                       self.slopes, self.losses)
+        loss = float(self.losses.sum())
         if len(hood.sloped):
             loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))
         if not gradient:
             return loss, None
-        _add_reverse_cumsum(self.back, self.back_cumulative)
-        _forces(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, self.back, self.force, self.grad)
-        _collect_forces(hood.neighbour_offsets, hood.by_neighbour, self.force, self.grad)
-        if len(hood.sloped):
-            back = self.back[hood.sloped]
-            self.grad[hood.sloped, 0] -= (back * self.slope_x).sum(axis=1)
-            self.grad[hood.sloped, 1] -= (back * self.slope_y).sum(axis=1)
-            self.grad[hood.sloped] += hood.variance_force
-        return loss, self.grad
+        _gradient(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, self.point_offsets,
+                  self.point_window, self.point_weight, self.slopes, self.slot, self.slope_x, self.slope_y,
+                  hood.variance_force, self.parts)
+        return loss, self.parts[0] if len(self.parts) == 1 else self.parts.sum(axis=0)
 
 
 def window_sums(values: np.ndarray, offsets: np.ndarray, members: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """(W, m) window sums ``sum_q weights[q] values[members[q]]`` over each window's entries ``offsets[w]:offsets[w + 1]``."""
     out = np.empty((len(offsets) - 1, values.shape[1]))
     _window_sums(np.ascontiguousarray(values, np.float64), offsets, members, weights, out)
-    return out
-
-
-def distribute_sums(values: np.ndarray, member_offsets: np.ndarray, by_member: np.ndarray, owners: np.ndarray,
-                    weights: np.ndarray) -> np.ndarray:
-    """(n, m) per-point sums ``sum weights[e] values[owners[e]]`` over each point's entries (the adjoint of :func:`window_sums`)."""
-    out = np.empty((len(member_offsets) - 1, values.shape[1]))
-    _distribute(np.ascontiguousarray(values, np.float64), member_offsets, by_member, owners, weights, out)
     return out

@@ -26,6 +26,7 @@ from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff, pcf_radii, r_max, uniform_expectation
+from synthesis.workspace import Workspace, scratch
 
 GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dimension
 DENSITY_FLOOR = 1e-3  # relative to the mean density: keeps spacings finite in white areas
@@ -39,11 +40,23 @@ UNIFORM_TOLERANCE = (0.02, 0.005)  # log-intensity and latent spreads below whic
 POISSON_PAIR_SCALE = 2.0 / math.sqrt(3.0)  # intensity * r_max^2, the same at every density
 
 
-def sample_grid(grid: np.ndarray, xy: np.ndarray, side_px: int) -> np.ndarray:
-    """Bilinear samples (n, C) of a (H, W, C) grid at positions xy (n, 2) in map units.
+def sample_grid(grid: np.ndarray, xy: np.ndarray, side_px: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Bilinear samples (n, C) of a (H, W, C) grid at positions xy (n, 2) in map units (the grid's dtype).
 
-    Positions outside the grid take the nearest edge value.
+    Positions outside the grid take the nearest edge value. ``out``: an (n, C)
+    array of the grid's dtype to fill. A numba kernel; :func:`sample_grid_reference`
+    is the plain version.
     """
+    from synthesis.fields_fast import grid_samples
+
+    xy = np.asarray(xy, np.float64)
+    out = np.empty((len(xy), grid.shape[2]), grid.dtype) if out is None else out
+    grid_samples(np.ascontiguousarray(grid), xy[:, 0] * side_px - 0.5, xy[:, 1] * side_px - 0.5, out)
+    return out
+
+
+def sample_grid_reference(grid: np.ndarray, xy: np.ndarray, side_px: int) -> np.ndarray:
+    """Plain numpy version of :func:`sample_grid` (tests compare them)."""
     height, width, _ = grid.shape
     col = np.clip(xy[:, 0] * side_px - 0.5, 0, width - 1)
     row = np.clip(xy[:, 1] * side_px - 0.5, 0, height - 1)
@@ -276,13 +289,19 @@ class MapFields:
         return u, dx, dy, tent
 
     # --- sampling at points -------------------------------------------------
-    def at(self, xy: np.ndarray, denominator: bool = True) -> dict[str, np.ndarray]:
-        """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target, dispersion and (optionally) denominator (n, m)."""
+    def at(self, xy: np.ndarray, denominator: bool = True, workspace: Workspace | None = None) -> dict[str, np.ndarray]:
+        """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target, dispersion and (optionally) denominator (n, m).
+
+        ``workspace``: where the (n, m) samples go (buffers ``at.target``, ``at.dispersion``).
+        """
+        workspace = scratch(workspace)
+        n, m = len(xy), self.target.shape[2]
         fields = {
             "spacing": sample_grid(self.spacing, xy, self.side_px)[:, 0],
             "latent": sample_grid(self.latent, xy, self.side_px),
-            "target": sample_grid(self.target, xy, self.side_px),
-            "dispersion": sample_grid(self.dispersion, xy, self.side_px),
+            "target": sample_grid(self.target, xy, self.side_px, workspace.empty("at.target", (n, m), self.target.dtype)),
+            "dispersion": sample_grid(self.dispersion, xy, self.side_px,
+                                      workspace.empty("at.dispersion", (n, m), self.dispersion.dtype)),
         }
         if denominator:
             fields["denominator"] = self.denominator_at(xy)
@@ -302,12 +321,15 @@ class DenominatorTracker:
         self.anchor: np.ndarray | None = None
 
     def update(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Denominators (n, m) at xy (n, 2), the indices (K,) of the points near borders and edges and their slopes (K, m, 2)."""
+        """Denominators (n, m) at xy (n, 2), the indices (K,) of the points near borders and edges and their slopes (K, m, 2).
+
+        The denominators are a buffer of the tracker, overwritten by the next update.
+        """
         xy = np.asarray(xy, np.float64)
         if self.anchor is None or len(self.anchor) != len(xy):
             moved = np.arange(len(xy))
             m = len(self.fields.radii)
-            self.anchor, self.values = xy.copy(), np.empty((len(xy), m))
+            self.anchor, self.values, self.current = xy.copy(), np.empty((len(xy), m)), np.empty((len(xy), m))
             self.sloped, self.slopes = np.zeros(len(xy), bool), np.zeros((len(xy), m, 2), np.float32)
         else:
             spacing = sample_grid(self.fields.spacing, xy, self.fields.side_px)[:, 0]
@@ -320,6 +342,7 @@ class DenominatorTracker:
             self.slopes[moved] = 0.0
             self.slopes[moved[todo]] = slopes
         sloped = np.flatnonzero(self.sloped)
-        current = self.values.copy()
+        current = self.current
+        np.copyto(current, self.values)
         current[sloped] += np.einsum("kjd,kd->kj", self.slopes[sloped], xy[sloped] - self.anchor[sloped])
         return current, sloped, self.slopes[sloped].astype(np.float64)

@@ -1,4 +1,4 @@
-"""Numba kernel for the Poisson denominator's polar quadrature (:meth:`synthesis.fields.MapFields.denominator_at`).
+"""Numba kernels of :mod:`synthesis.fields`: bilinear sampling of grids at points, and the Poisson denominator's polar quadrature (:meth:`synthesis.fields.MapFields.denominator_at`).
 
 Same sampling as the numpy reference (:meth:`MapFields._quadrature_reference`):
 bilinear intensity and latent with edge clamping, nodes outside the domain
@@ -25,6 +25,23 @@ def _bilinear(plane, x, y):  # pragma: no cover - jitted
     top = plane[r0, c0] * (1.0 - tx) + plane[r0, c1] * tx
     bottom = plane[r1, c0] * (1.0 - tx) + plane[r1, c1] * tx
     return top * (1.0 - ty) + bottom * ty
+
+
+@numba.njit(parallel=True, cache=True)
+def grid_samples(grid, px, py, out):  # pragma: no cover - jitted
+    """Bilinear samples into out (n, C) of a (H, W, C) grid at pixel-index coordinates px, py (n,), edges clamped."""
+    height, width, channels = grid.shape
+    for i in numba.prange(len(px)):
+        x = min(max(px[i], 0.0), width - 1.0)
+        y = min(max(py[i], 0.0), height - 1.0)
+        c0 = min(int(x), max(width - 2, 0))
+        r0 = min(int(y), max(height - 2, 0))
+        c1, r1 = min(c0 + 1, width - 1), min(r0 + 1, height - 1)
+        tx, ty = x - c0, y - r0
+        for k in range(channels):
+            top = grid[r0, c0, k] * (1.0 - tx) + grid[r0, c1, k] * tx
+            bottom = grid[r1, c0, k] * (1.0 - tx) + grid[r1, c1, k] * tx
+            out[i, k] = top * (1.0 - ty) + bottom * ty
 
 
 @numba.njit(parallel=True, cache=True)

@@ -38,6 +38,16 @@ def hilbert_index(order: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return d
 
 
+def spatial_order(xy: np.ndarray, domain: tuple[float, float], order: int = 10) -> np.ndarray:
+    """(n,) permutation sorting points (n, 2) in ``[0, w] x [0, h]`` along a Hilbert curve of 2^order cells per side.
+
+    Points close in space end up close in memory (fewer cache misses in neighbour loops).
+    """
+    side = 1 << order
+    cells = np.clip((np.asarray(xy) / max(domain) * side).astype(np.int64), 0, side - 1)
+    return np.argsort(hilbert_index(order, cells[:, 0], cells[:, 1]), kind="stable")
+
+
 def _cell_grid(density: np.ndarray, side_px: int, domain: tuple[float, float], n: int) -> tuple[int, np.ndarray]:
     """Order of a 2^order grid over the unit square and its cells' density (2^order, 2^order), 0 outside the domain."""
     peak = float(density.max()) / max(float(density.mean()), 1e-12)

@@ -44,6 +44,7 @@ from synthesis.fields import DenominatorTracker, MapFields, sample_grid
 from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
+from synthesis.workspace import Workspace
 
 
 @dataclass(frozen=True)
@@ -148,13 +149,15 @@ def synthesize(
         progress: show a progress bar with the loss and ETA on stderr.
         threads: threads of the numba kernels (1 is best on a busy 2-core machine).
         on_iteration: called as ``on_iteration(step, xy)`` after every step with the
-            current (n, 2) positions (a live view: copy to keep).
+            current (n, 2) positions (a live view, in an internal spatially sorted
+            order that stays the same for the whole run: copy to keep).
     """
     import numba
     from tqdm import tqdm
 
     from synthesis.edgepcf import WindowSampler, find_neighbourhoods
     from synthesis.edgepcf_fast import FastObjective
+    from synthesis.stratified import spatial_order
 
     start = time.perf_counter()
     try:
@@ -173,7 +176,9 @@ def synthesize(
     palette = palette or load_palette()
     fields = MapFields.build(lab_map, n, palette, guide=guide)
     xy = initial_points(lab_map, n, rng, fields)
-    windows, denominators = WindowSampler(fields), DenominatorTracker(fields)
+    order = spatial_order(xy, fields.domain)  # points stay sorted in memory along a Hilbert curve while they move
+    xy = xy[order]
+    windows, denominators, workspace = WindowSampler(fields), DenominatorTracker(fields), Workspace()
     start_xy = xy.copy()
     first, second = np.zeros_like(xy), 0.0
     beta1, beta2 = 0.9, 0.999
@@ -183,8 +188,8 @@ def synthesize(
     bar = tqdm(total=plan.iterations, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
     for step in range(plan.iterations):
         if objective is None or step % plan.refresh == 0:
-            hood = find_neighbourhoods(fields, xy, windows.draw(rng), denominators)
-            objective = FastObjective(hood)
+            hood = find_neighbourhoods(fields, xy, windows.draw(rng), denominators, workspace)
+            objective = FastObjective(hood, threads, workspace)
             freedom = 1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)
             step_length = (hood.spacing * hood.structure * freedom)[:, None]
             leash = (plan.leash * hood.spacing * freedom)[:, None]
@@ -205,17 +210,21 @@ def synthesize(
         bar.set_postfix(loss=f"{loss:.4g}", refresh=False)
         bar.update()
     bar.close()
-    return SynthesisResult(PointSet(xy.copy(), fields.domain), plan.name, plan.iterations,
-                           time.perf_counter() - start, setup, losses, final_loss(fields, xy, denominators))
+    points = np.empty_like(xy)
+    points[order] = xy  # the start's order
+    return SynthesisResult(PointSet(points, fields.domain), plan.name, plan.iterations,
+                           time.perf_counter() - start, setup, losses, final_loss(fields, xy, denominators, workspace))
 
 
-def final_loss(fields: MapFields, xy: np.ndarray, denominators: DenominatorTracker | None = None) -> float:
+def final_loss(fields: MapFields, xy: np.ndarray, denominators: DenominatorTracker | None = None,
+               workspace: Workspace | None = None) -> float:
     """The objective at positions xy (n, 2) with fresh pair lists and fixed-seed windows (comparable across runs and patterns).
 
-    ``denominators``: the run's tracker, so only points that moved since their last evaluation are integrated again.
+    ``denominators``: the run's tracker, so only points that moved since their last evaluation are integrated again;
+    ``workspace``: the run's buffers (overwritten).
     """
     from synthesis.edgepcf import find_neighbourhoods
     from synthesis.edgepcf_fast import FastObjective
 
-    hood = find_neighbourhoods(fields, xy, denominators=denominators)
-    return FastObjective(hood)(np.asarray(xy, np.float64), gradient=False)[0]
+    hood = find_neighbourhoods(fields, xy, denominators=denominators, workspace=workspace)
+    return FastObjective(hood, workspace=workspace)(np.asarray(xy, np.float64), gradient=False)[0]
