@@ -30,13 +30,10 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import Delaunay, cKDTree
 from scipy.special import ndtr
 
+from data_gen.stipplers import lloyd_stipple, poisson_disk, r_max, stratified_start  # noqa: F401 - re-exported (see the end)
+
 SQRT3 = math.sqrt(3.0)
 STACKED = 0.05  # NN below this many local r_max counts as a stacked point
-
-
-def r_max(n: int, area: float) -> float:
-    """Spacing of the hexagonal lattice with ``n`` points in ``area``."""
-    return 2.0 * math.sqrt(area / (2.0 * SQRT3 * n))
 
 
 def r_max_of_intensity(intensity: np.ndarray | float) -> np.ndarray:
@@ -341,68 +338,7 @@ def density_psnr(xy: np.ndarray, density: np.ndarray, domain: tuple[float, float
     return float(10 * np.log10(target.max() ** 2 / mse))
 
 
-# --------------------------------------------------------------------------- weighted Lloyd stippler
-
-
-def stratified_start(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
-    """n points, density-proportional and stratified: jittered inverse-CDF sampling along a
-    boustrophedon (serpentine) pixel order, uniform within the chosen pixel."""
-    H, W = density.shape
-    w, h = domain
-    pixel = max(w, h) / max(H, W)
-    order = np.arange(H * W).reshape(H, W)
-    order[1::2] = order[1::2, ::-1]
-    order = order.reshape(-1)
-    weights = density.reshape(-1)[order].astype(np.float64)
-    cdf = np.cumsum(weights)
-    cdf /= cdf[-1]
-    u = (np.arange(n) + rng.random(n)) / n
-    pick = order[np.minimum(np.searchsorted(cdf, u, side="right"), H * W - 1)]
-    row, col = np.divmod(pick, W)
-    return (np.stack([col, row], 1) + rng.random((n, 2))) * pixel
-
-
-def lloyd_stipple(density: np.ndarray, n: int, domain: tuple[float, float] = (1.0, 1.0), iterations: int = 60,
-                  seed: int = 0, supersample: int = 1) -> np.ndarray:
-    """Weighted Voronoi stippling (Secord 2002): centroidal Voronoi tessellation with the density
-    as weight, on the pixel grid (optionally supersampled), from a stratified start.
-
-    Each iteration assigns every pixel centre to its nearest point (cKDTree) and moves each point
-    to the density-weighted centroid of its pixels (np.bincount); a point whose cell has no
-    weight stays where it is.
-    """
-    rng = np.random.default_rng(seed)
-    dens = np.asarray(density, np.float64)
-    if supersample > 1:
-        dens = np.kron(dens, np.ones((supersample, supersample)))
-    H, W = dens.shape
-    pixel = max(domain) / max(H, W)
-    xy = stratified_start(dens, n, domain, rng)
-    rows, cols = np.mgrid[0:H, 0:W]
-    centres = np.stack([(cols.reshape(-1) + 0.5) * pixel, (rows.reshape(-1) + 0.5) * pixel], 1)
-    weight = dens.reshape(-1)
-    keep = weight > 0
-    centres, weight = centres[keep], weight[keep]
-    for _ in range(iterations):
-        _, owner = cKDTree(xy).query(centres)
-        mass = np.bincount(owner, weight, minlength=n)
-        sx = np.bincount(owner, weight * centres[:, 0], minlength=n)
-        sy = np.bincount(owner, weight * centres[:, 1], minlength=n)
-        moved = mass > 0
-        xy[moved, 0] = sx[moved] / mass[moved]
-        xy[moved, 1] = sy[moved] / mass[moved]
-    return xy
-
-
 # --------------------------------------------------------------------------- references
-
-
-def poisson_disk(n: int, seed: int) -> np.ndarray:
-    """scipy's ``qmc.PoissonDisk`` on the unit square (bounded), filled to saturation
-    (``fill_space``) at radius 0.725 r_max(n): about n points (within ~2 %; statistics use its
-    own count). Stopping ``random(n)`` before saturation would leave the last region unfilled
-    (Bridson-style growth), i.e. a hole that is an artefact of the call, not of the process."""
-    from scipy.stats import qmc
-
-    engine = qmc.PoissonDisk(d=2, radius=0.725 * r_max(n, 1.0), seed=np.random.default_rng(seed))
-    return engine.fill_space()
+# The weighted Lloyd stippler, its stratified start and scipy's Poisson-disk sampling live in
+# data_gen/stipplers.py (numpy, scipy and Pillow only, no synthesis import), which the network's
+# training pairs and evaluation use too; they and r_max are imported at the top.

@@ -1,0 +1,217 @@
+"""Point patterns made by other methods than the synthesiser, from a density image (issue 14).
+
+The network must not learn the synthesiser's fingerprint: its training pairs
+and its out-of-distribution evaluation also use point sets from other
+stipplers and reference processes, each with a known correlation label
+(:data:`LABELS`, a preset name of the palette). This module needs only numpy,
+scipy and Pillow (no ``synthesis`` import), so the fidelity bench can use it
+as an independent yardstick too (``bench/fidelity_stats.py`` re-exports
+:func:`lloyd_stipple`, :func:`stratified_start` and :func:`poisson_disk`).
+
+Conventions: ``density`` is an (H, W) array in [0, 1] covering the domain
+``[0, w] x [0, h]`` with ``max(w, h) = 1`` and square pixels (row 0 at y = 0);
+a method returns (n, 2) float64 positions in the domain, y down.
+
+=================  =========================================================  =======
+method             what it does                                               label
+=================  =========================================================  =======
+``random``         density-proportional Poisson: pixel by density, uniform    white
+                   inside it
+``lloyd``          weighted Voronoi stippling (Secord 2002), CVT by density   blue
+``poisson_disk``   dart throwing with a radius of 0.7 local spacings (the     blue
+                   spacing of the density at each candidate)
+``jitter``         a jittered grid warped by the density's inverse CDF        step
+``clusters``       Thomas process: density-proportional parents, Gaussian     red
+                   offspring at 0.6 local spacings
+``floyd_steinberg``  error-diffusion dithering on a grid of about n inked     (none)
+                   pixels (evaluation only: a lattice, no preset)
+=================  =========================================================  =======
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+SQRT3 = math.sqrt(3.0)
+CLUSTER_POINTS = 16  # Thomas offspring per parent on average (as synthesis.generators.red)
+CLUSTER_STD_SPACINGS = 0.6  # offspring spread, local mean spacings
+DISK_RADIUS_SPACINGS = 0.7  # Poisson-disk radius, local r_max (hexagonal spacing)
+DISK_CANDIDATES = 12  # dart-throwing candidates per wanted point
+
+
+def r_max(n: int, area: float) -> float:
+    """Spacing of the hexagonal lattice with ``n`` points in ``area``."""
+    return 2.0 * math.sqrt(area / (2.0 * SQRT3 * n))
+
+
+def pixel_size(density: np.ndarray, domain: tuple[float, float]) -> float:
+    """Side of one square pixel of ``density`` in domain units."""
+    return max(domain) / max(np.shape(density))
+
+
+def random_stipple(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """n independent points, density-proportional: a pixel drawn by its density, then uniform inside it."""
+    weights = np.asarray(density, np.float64).reshape(-1)
+    pick = rng.choice(weights.size, size=n, p=weights / weights.sum())
+    row, col = np.divmod(pick, np.shape(density)[1])
+    return (np.stack([col, row], 1) + rng.random((n, 2))) * pixel_size(density, domain)
+
+
+def stratified_start(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """n points, density-proportional and stratified: jittered inverse-CDF sampling along a
+    boustrophedon (serpentine) pixel order, uniform within the chosen pixel."""
+    H, W = density.shape
+    order = np.arange(H * W).reshape(H, W)
+    order[1::2] = order[1::2, ::-1]
+    order = order.reshape(-1)
+    weights = density.reshape(-1)[order].astype(np.float64)
+    cdf = np.cumsum(weights)
+    cdf /= cdf[-1]
+    u = (np.arange(n) + rng.random(n)) / n
+    pick = order[np.minimum(np.searchsorted(cdf, u, side="right"), H * W - 1)]
+    row, col = np.divmod(pick, W)
+    return (np.stack([col, row], 1) + rng.random((n, 2))) * pixel_size(density, domain)
+
+
+def lloyd_stipple(density: np.ndarray, n: int, domain: tuple[float, float] = (1.0, 1.0), iterations: int = 60,
+                  seed: int = 0, supersample: int = 1) -> np.ndarray:
+    """Weighted Voronoi stippling (Secord 2002): centroidal Voronoi tessellation with the density
+    as weight, on the pixel grid (optionally supersampled), from a stratified start.
+
+    Each iteration assigns every pixel centre to its nearest point (cKDTree) and moves each point
+    to the density-weighted centroid of its pixels (np.bincount); a point whose cell has no
+    weight stays where it is. Use at least a few pixels per point (the centroids live on the grid).
+    """
+    rng = np.random.default_rng(seed)
+    dens = np.asarray(density, np.float64)
+    if supersample > 1:
+        dens = np.kron(dens, np.ones((supersample, supersample)))
+    H, W = dens.shape
+    pixel = pixel_size(dens, domain)
+    xy = stratified_start(dens, n, domain, rng)
+    rows, cols = np.mgrid[0:H, 0:W]
+    centres = np.stack([(cols.reshape(-1) + 0.5) * pixel, (rows.reshape(-1) + 0.5) * pixel], 1)
+    weight = dens.reshape(-1)
+    keep = weight > 0
+    centres, weight = centres[keep], weight[keep]
+    for _ in range(iterations):
+        _, owner = cKDTree(xy).query(centres)
+        mass = np.bincount(owner, weight, minlength=n)
+        sx = np.bincount(owner, weight * centres[:, 0], minlength=n)
+        sy = np.bincount(owner, weight * centres[:, 1], minlength=n)
+        moved = mass > 0
+        xy[moved, 0] = sx[moved] / mass[moved]
+        xy[moved, 1] = sy[moved] / mass[moved]
+    return xy
+
+
+def poisson_disk(n: int, seed: int) -> np.ndarray:
+    """scipy's ``qmc.PoissonDisk`` on the unit square (bounded), filled to saturation
+    (``fill_space``) at radius 0.725 r_max(n): about n points (within ~2 %; statistics use its
+    own count). Stopping ``random(n)`` before saturation would leave the last region unfilled
+    (Bridson-style growth), i.e. a hole that is an artefact of the call, not of the process."""
+    from scipy.stats import qmc
+
+    engine = qmc.PoissonDisk(d=2, radius=0.725 * r_max(n, 1.0), seed=np.random.default_rng(seed))
+    return engine.fill_space()
+
+
+def local_r_max(density: np.ndarray, n: int, domain: tuple[float, float], xy: np.ndarray) -> np.ndarray:
+    """(k,) hexagonal spacing at positions xy (k, 2) of n points distributed by ``density`` (nearest pixel)."""
+    H, W = density.shape
+    pixel = pixel_size(density, domain)
+    col = np.clip((xy[:, 0] / pixel).astype(np.int64), 0, W - 1)
+    row = np.clip((xy[:, 1] / pixel).astype(np.int64), 0, H - 1)
+    mean = float(np.mean(density)) * domain[0] * domain[1]  # ink in the domain
+    intensity = n * np.maximum(density[row, col], 1e-3) / mean
+    return 2.0 / np.sqrt(2.0 * SQRT3 * intensity)
+
+
+def variable_poisson_disk(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """Up to n points by dart throwing: density-proportional candidates, each kept unless a kept point lies
+    within the mean of their radii (:data:`DISK_RADIUS_SPACINGS` local r_max each, at most the candidates'
+    99th percentile). Usually exactly n."""
+    candidates = random_stipple(density, DISK_CANDIDATES * n, domain, rng)
+    radii = DISK_RADIUS_SPACINGS * local_r_max(density, n, domain, candidates)
+    radii = np.minimum(radii, np.quantile(radii, 0.99))  # the lightest 1 %: no wider than the rest (keeps cells small)
+    cell = float(radii.max())
+    grid: dict[tuple[int, int], list[int]] = {}
+    kept: list[int] = []
+    for index, ((x, y), radius) in enumerate(zip(candidates, radii, strict=True)):
+        i, j = int(y / cell), int(x / cell)
+        near = [k for di in (-1, 0, 1) for dj in (-1, 0, 1) for k in grid.get((i + di, j + dj), ())]
+        if near:
+            others = candidates[near]
+            if np.any(np.hypot(others[:, 0] - x, others[:, 1] - y) < 0.5 * (radii[near] + radius)):
+                continue
+        grid.setdefault((i, j), []).append(index)
+        kept.append(index)
+        if len(kept) == n:
+            break
+    return candidates[kept]
+
+
+def warped_jitter(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """n points of a jittered grid (one per cell of a ``ceil(sqrt(n))``-square grid, n cells drawn) on the
+    unit square, mapped to the domain by the density's inverse CDF (rows by their ink, then within the row)."""
+    side = math.isqrt(n - 1) + 1
+    cells = rng.choice(side * side, size=n, replace=False)
+    uv = (np.stack([cells % side, cells // side], 1) + rng.random((n, 2))) / side
+    dens = np.asarray(density, np.float64) + 1e-12
+    H, W = dens.shape
+    pixel = pixel_size(dens, domain)
+    row_cdf = np.concatenate([[0.0], np.cumsum(dens.sum(axis=1))])
+    row_cdf /= row_cdf[-1]
+    y_pixels = np.interp(uv[:, 1], row_cdf, np.arange(H + 1))
+    row = np.clip(y_pixels.astype(np.int64), 0, H - 1)
+    col_cdf = np.concatenate([np.zeros((H, 1)), np.cumsum(dens, axis=1)], axis=1)
+    col_cdf /= col_cdf[:, -1:]
+    x_pixels = np.array([np.interp(u, col_cdf[r], np.arange(W + 1)) for u, r in zip(uv[:, 0], row, strict=True)])
+    return np.stack([x_pixels, y_pixels], 1) * pixel
+
+
+def thomas_clusters(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """n points of a Thomas process: ``n / 16`` density-proportional parents, each point offset from its parent by
+    a Gaussian of :data:`CLUSTER_STD_SPACINGS` local mean spacings; points leaving the domain are clipped onto it."""
+    parents = random_stipple(density, max(1, round(n / CLUSTER_POINTS)), domain, rng)
+    owner = rng.integers(len(parents), size=n)
+    spacing = local_r_max(density, n, domain, parents) * math.sqrt(SQRT3 / 2.0)  # mean spacing sqrt(1/intensity)
+    xy = parents[owner] + rng.normal(size=(n, 2)) * (CLUSTER_STD_SPACINGS * spacing[owner])[:, None]
+    return np.clip(xy, 0.0, np.nextafter(np.asarray(domain), 0.0))
+
+
+def floyd_steinberg(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """About n points: Floyd-Steinberg dithering (Pillow) of the density on a grid of ``n / mean density`` pixels,
+    a point at the centre of each inked pixel. ``rng`` is unused (the dither is deterministic)."""
+    from PIL import Image
+
+    w, h = domain
+    columns = max(1, round(math.sqrt(n / max(float(np.mean(density)), 1e-6) * w / h)))
+    rows = max(1, round(columns * h / w))
+    grey = Image.fromarray(np.round(255 * (1 - np.clip(density, 0, 1))).astype(np.uint8)).resize((columns, rows), Image.Resampling.BOX)
+    inked = np.asarray(grey.convert("1", dither=Image.Dither.FLOYDSTEINBERG)) == 0
+    row, col = np.nonzero(inked)
+    return (np.stack([col, row], 1) + 0.5) * (w / columns)
+
+
+def _lloyd(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """:func:`lloyd_stipple` with 40 iterations on the density supersampled to at least 8 pixels per point."""
+    supersample = max(1, math.ceil(math.sqrt(8 * n / np.size(density))))
+    return lloyd_stipple(density, n, domain, iterations=40, seed=int(rng.integers(2**31)), supersample=supersample)
+
+
+Method = Callable[[np.ndarray, int, tuple[float, float], np.random.Generator], np.ndarray]
+
+METHODS: dict[str, Method] = {
+    "random": random_stipple,
+    "lloyd": _lloyd,
+    "poisson_disk": variable_poisson_disk,
+    "jitter": warped_jitter,
+    "clusters": thomas_clusters,
+    "floyd_steinberg": floyd_steinberg,
+}
+LABELS = {"random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "step", "clusters": "red"}
