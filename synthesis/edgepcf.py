@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.cells import CellGrid
-from synthesis.edgepcf_fast import expectations, row_guides, window_sums
+from synthesis.edgepcf_fast import point_terms, row_guides, window_sums
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
@@ -129,9 +129,9 @@ class Neighbourhoods:
     Attributes:
         offsets: (n + 1,) int64; pairs of centre c are ``offsets[c]:offsets[c + 1]``.
         neighbours: (P,) int32 neighbour of each pair (within the cutoff of its centre).
-        guide: (P,) float64 guidance weights H of the pairs.
+        guide: (P,) float32 guidance weights H of the pairs.
         spacing: (n,) local r_max at the points.
-        expected: (n, m) target tent counts ``g D`` around each point at ``anchor`` ...
+        expected: (n, m) float32 target tent counts ``g D`` around each point at ``anchor`` ...
         anchor: (n, 2) ... the positions at the refresh; for points near borders and edges ...
         sloped: (K,) int64 ... (these) the expected counts change with position ...
         expected_slope: (K, m, 2) ... by ``g grad D`` (linearised between refreshes).
@@ -222,28 +222,27 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     if window_centres is None:
         window_centres = WindowSampler(fields).draw(np.random.default_rng(0))
     workspace = scratch(workspace)
-    at = fields.at(xy, denominator=False, workspace=workspace)
-    denominator, sloped, slope = (denominators or DenominatorTracker(fields)).update(xy)
-    spacing = at["spacing"].astype(np.float64)
-    latent = at["latent"].astype(np.float64)
+    denominator = (denominators or DenominatorTracker(fields)).update(xy)
+    spacing = sample_grid(fields.spacing, xy, fields.side_px)[:, 0].astype(np.float64)
+    latent = sample_grid(fields.latent, xy, fields.side_px).astype(np.float64)
     reach = neighbour_cutoff(fields.radii) * spacing
     grid = CellGrid(xy, fields.domain, float(np.median(reach)))
     offsets, neighbours, _ = grid.query(xy, reach, exclude=np.arange(n), distances=False, workspace=workspace, name="pairs")
-    guide = workspace.empty("pairs.guide", len(neighbours))
+    guide = workspace.empty("pairs.guide", len(neighbours), np.float32)
     if fields.guide:
         row_guides(latent, latent, offsets, neighbours, GUIDE_BANDWIDTH, out=guide)
     else:
         guide.fill(1.0)
-    target, dispersion = at["target"], at["dispersion"]
-    expected, variance = expectations(target, denominator, dispersion, workspace)  # variance: per point, of cumulative counts
+    expected, variance, regular, structured = point_terms(fields, xy, denominator, int(np.sum(fields.radii <= REGULAR_RANGE)),
+                                                          POISSON_TOLERANCE, STRUCTURE_RANGE, workspace)
     windows = [_windows(scale, fields, grid, latent, variance, where, workspace, f"windows{i}")
                for i, (scale, where) in enumerate(zip(WINDOW_SCALES, window_centres))]
-    expected_slope = target[sloped][..., None] * slope
-    variance_force = _variance_force(windows, n, sloped, dispersion[sloped][..., None] * np.cumsum(expected_slope, axis=1),
-                                     fields.radii)
+    sloped = denominator.sloped
+    expected_slope = sample_grid(fields.target, xy[sloped], fields.side_px)[..., None] * denominator.slopes
+    dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
+    variance_force = _variance_force(windows, n, sloped, dispersion[..., None] * np.cumsum(expected_slope, axis=1), fields.radii)
     return Neighbourhoods(offsets, neighbours, guide, spacing, expected, xy.copy(), sloped, expected_slope,
-                          variance_force, windows, np.asarray(fields.radii, np.float64), regularity(target, fields.radii),
-                          structure(target))
+                          variance_force, windows, np.asarray(fields.radii, np.float64), regular, structured)
 
 
 def _variance_force(windows: list[Windows], n: int, sloped: np.ndarray, variance_slope: np.ndarray,
@@ -302,7 +301,7 @@ def dead_zone(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
 
 def expected_counts(xy: np.ndarray, hood: Neighbourhoods) -> np.ndarray:
     """(n, m) target tent counts at positions xy (n, 2), linearised around the refresh's positions."""
-    expected = hood.expected.copy()
+    expected = hood.expected.astype(np.float64)
     expected[hood.sloped] += np.einsum("kjd,kd->kj", hood.expected_slope, xy[hood.sloped] - hood.anchor[hood.sloped])
     return expected
 

@@ -27,10 +27,12 @@ import numba
 import numpy as np
 
 from synthesis.cells import transpose
+from synthesis.fields_fast import corners
 from synthesis.workspace import Workspace, scratch
 
 if TYPE_CHECKING:
     from synthesis.edgepcf import Neighbourhoods
+    from synthesis.fields import Denominators, MapFields
 
 _JIT = {"parallel": True, "cache": True, "fastmath": False}
 
@@ -174,27 +176,45 @@ def row_guides(latent: np.ndarray, row_latent: np.ndarray, offsets: np.ndarray, 
 
 
 @numba.njit(**_JIT)
-def _expectations(target, denominator, dispersion, expected, variance):  # pragma: no cover - jitted
-    n, m = expected.shape
-    for c in numba.prange(n):
-        total = 0.0
+def _point_terms(target, dispersion, px, py, exact, slot, values, short, tolerance, structure_range,
+                 expected, variance, regularity, structure):  # pragma: no cover - jitted
+    height, width, m = target.shape
+    for c in numba.prange(len(px)):
+        r0, r1, c0, c1, tx, ty = corners(height, width, px[c], py[c])
+        total, below, furthest = 0.0, 0.0, 0.0
         for j in range(m):
-            e = target[c, j] * denominator[c, j]
+            g = np.float32((target[r0, c0, j] * (1.0 - tx) + target[r0, c1, j] * tx) * (1.0 - ty)
+                           + (target[r1, c0, j] * (1.0 - tx) + target[r1, c1, j] * tx) * ty)
+            s = np.float32((dispersion[r0, c0, j] * (1.0 - tx) + dispersion[r0, c1, j] * tx) * (1.0 - ty)
+                           + (dispersion[r1, c0, j] * (1.0 - tx) + dispersion[r1, c1, j] * tx) * ty)
+            e = g * (exact[j] if slot[c] < 0 else values[slot[c], j])
             expected[c, j] = e
             total += e
-            variance[c, j] = dispersion[c, j] * (total + 1.0)
+            variance[c, j] = s * (total + 1.0)
+            if j < short:
+                below += g
+            furthest = max(furthest, abs(g - 1.0))
+        regularity[c] = min(max(1.0 - below / short, 0.0), 1.0)
+        structure[c] = min(max((furthest - tolerance) / structure_range, 0.0), 1.0)
 
 
-def expectations(target: np.ndarray, denominator: np.ndarray, dispersion: np.ndarray,
-                 workspace: Workspace | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Expected tent counts ``g D`` (n, m) and the cumulative counts' variance ``dispersion (cumsum(g D) + 1)`` (n, m), float64.
+def point_terms(fields: MapFields, xy: np.ndarray, denominators: Denominators, short: int, tolerance: float,
+                structure_range: float, workspace: Workspace | None = None) -> tuple[np.ndarray, ...]:
+    """Per-point terms of the objective at xy (n, 2), the target and dispersion sampled on the fly (bilinear, float32 as
+    :func:`synthesis.fields.sample_grid`):
 
-    From (n, m) target, denominator and dispersion; into ``workspace`` buffers ``expected``, ``variance`` when given.
+    expected tent counts ``g D`` (n, m) float32, the cumulative counts' variance ``dispersion (cumsum(g D) + 1)``
+    (n, m) float32 (``workspace`` buffers ``expected``, ``variance``), and the target's regularity (n,) (1 - mean of
+    its first ``short`` radii) and structure (n,) (see :func:`synthesis.edgepcf.structure`).
     """
     workspace = scratch(workspace)
-    expected, variance = workspace.empty("expected", denominator.shape), workspace.empty("variance", denominator.shape)
-    _expectations(target, np.ascontiguousarray(denominator, np.float64), dispersion, expected, variance)
-    return expected, variance
+    n, m = len(xy), len(fields.radii)
+    expected, variance = workspace.empty("expected", (n, m), np.float32), workspace.empty("variance", (n, m), np.float32)
+    regularity, structure = np.empty(n), np.empty(n)
+    _point_terms(fields.target, fields.dispersion, xy[:, 0] * fields.side_px - 0.5, xy[:, 1] * fields.side_px - 0.5,
+                 denominators.exact, denominators.slot, denominators.values, short, tolerance, structure_range,
+                 expected, variance, regularity, structure)
+    return expected, variance, regularity, structure
 
 
 class FastObjective:
@@ -214,7 +234,7 @@ class FastObjective:
         starts = np.cumsum([0] + [len(windows.members) for windows in families[:-1]])
         self.offsets = np.concatenate([[0]] + [windows.offsets[1:] + start for windows, start in zip(families, starts)])
         self.members = np.concatenate([windows.members for windows in families])
-        self.weights = np.concatenate([windows.weights for windows in families])
+        self.weights = np.concatenate([windows.weights for windows in families]).astype(np.float32)
         self.deviation = np.concatenate([windows.deviation for windows in families])
         self.dead = np.concatenate([np.full(count, windows.scale.dead_zone) for windows, count in zip(families, counts)])
         self.scale = np.concatenate([np.full(count, windows.scale.weight / (count * m)) for windows, count in zip(families, counts)])
@@ -225,8 +245,8 @@ class FastObjective:
         self.slot[hood.sloped] = np.arange(len(hood.sloped), dtype=np.int32)
         self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each
         self.slope_y = np.ascontiguousarray(hood.expected_slope[..., 1])
-        self.cumulative = workspace.empty("objective.cumulative", (n, m))
-        self.slopes = workspace.empty("objective.slopes", (len(self.offsets) - 1, m))
+        self.cumulative = workspace.empty("objective.cumulative", (n, m), np.float32)
+        self.slopes = workspace.empty("objective.slopes", (len(self.offsets) - 1, m), np.float32)
         self.losses = workspace.empty("objective.losses", len(self.offsets) - 1)
         threads = numba.get_num_threads() if threads is None else max(1, min(threads, numba.get_num_threads()))
         self.parts = workspace.empty("objective.parts", (threads, n, 2))
@@ -250,7 +270,10 @@ class FastObjective:
 
 
 def window_sums(values: np.ndarray, offsets: np.ndarray, members: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(W, m) window sums ``sum_q weights[q] values[members[q]]`` over each window's entries ``offsets[w]:offsets[w + 1]``."""
+    """(W, m) float64 window sums ``sum_q weights[q] values[members[q]]`` over each window's entries ``offsets[w]:offsets[w + 1]``.
+
+    values (n, m) float32 or float64.
+    """
     out = np.empty((len(offsets) - 1, values.shape[1]))
-    _window_sums(np.ascontiguousarray(values, np.float64), offsets, members, weights, out)
+    _window_sums(np.ascontiguousarray(values), offsets, members, weights, out)
     return out

@@ -26,7 +26,6 @@ from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff, pcf_radii, r_max, uniform_expectation
-from synthesis.workspace import Workspace, scratch
 
 GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dimension
 DENSITY_FLOOR = 1e-3  # relative to the mean density: keeps spacings finite in white areas
@@ -200,28 +199,41 @@ class MapFields:
         gradient misses that a point moving away from a border or an edge gains
         expected neighbours, and points drift off borders and edges.
         """
+        todo, values, gradient = self.nonuniform_denominators(xy, slope)
+        out = np.broadcast_to(self.exact_denominator, (len(xy), len(self.radii))).copy()
+        out[todo] = values
+        return (out, todo, gradient) if slope else out
+
+    @functools.cached_property
+    def exact_denominator(self) -> np.ndarray:
+        """(m,) the denominator in a uniform neighbourhood, ``lambda s^2 E_j`` (the same at every density)."""
+        return POISSON_PAIR_SCALE * uniform_expectation(self.radii)
+
+    def nonuniform_denominators(self, xy: np.ndarray, slope: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`denominator_at` for the points that need quadrature only: their indices (K,) in xy (n, 2), values (K, m), slopes (K, m, 2).
+
+        The other points have :attr:`exact_denominator`; slopes are zeros unless ``slope``.
+        """
         xy = np.asarray(xy, np.float64)
-        m = len(self.radii)
-        exact = POISSON_PAIR_SCALE * uniform_expectation(self.radii)
-        out = np.broadcast_to(exact, (len(xy), m)).copy()
+        m, exact = len(self.radii), self.exact_denominator
         height, width, _ = self.intensity.shape
         col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
         row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
         todo = np.flatnonzero(~self.uniform[row, col])
-        gradient = np.zeros((len(todo), m, 2))
+        values, gradient = np.empty((len(todo), m)), np.zeros((len(todo), m, 2))
         if len(todo):
             spacing = sample_grid(self.spacing, xy[todo], self.side_px)[:, 0]
             latent = sample_grid(self.latent, xy[todo], self.side_px)
             own = sample_grid(self.intensity, xy[todo], self.side_px)[:, 0]
-            out[todo] = self._quadrature_at(xy[todo], spacing, latent, own) * exact
+            values[:] = self._quadrature_at(xy[todo], spacing, latent, own) * exact
             if slope:
                 for axis in (0, 1):
                     step = np.zeros(2)
                     step[axis] = 1.0
                     shift = (SLOPE_STEP * spacing)[:, None] * step
                     ahead = self._quadrature_at(xy[todo] + shift, spacing, latent, own) * exact
-                    gradient[..., axis] = (ahead - out[todo]) / (SLOPE_STEP * spacing)[:, None]
-        return (out, todo, gradient) if slope else out
+                    gradient[..., axis] = (ahead - values) / (SLOPE_STEP * spacing)[:, None]
+        return todo, values, gradient
 
     def _quadrature_at(self, xy: np.ndarray, spacing: np.ndarray, latent: np.ndarray, own: np.ndarray) -> np.ndarray:
         """(k, m) quadrature ratio (1 in a uniform neighbourhood) around points xy (k, 2) with spacing (k,), latent (k, 2), intensity (k,).
@@ -289,60 +301,84 @@ class MapFields:
         return u, dx, dy, tent
 
     # --- sampling at points -------------------------------------------------
-    def at(self, xy: np.ndarray, denominator: bool = True, workspace: Workspace | None = None) -> dict[str, np.ndarray]:
-        """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target, dispersion and (optionally) denominator (n, m).
-
-        ``workspace``: where the (n, m) samples go (buffers ``at.target``, ``at.dispersion``).
-        """
-        workspace = scratch(workspace)
-        n, m = len(xy), self.target.shape[2]
+    def at(self, xy: np.ndarray, denominator: bool = True) -> dict[str, np.ndarray]:
+        """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target, dispersion and (optionally) denominator (n, m)."""
         fields = {
             "spacing": sample_grid(self.spacing, xy, self.side_px)[:, 0],
             "latent": sample_grid(self.latent, xy, self.side_px),
-            "target": sample_grid(self.target, xy, self.side_px, workspace.empty("at.target", (n, m), self.target.dtype)),
-            "dispersion": sample_grid(self.dispersion, xy, self.side_px,
-                                      workspace.empty("at.dispersion", (n, m), self.dispersion.dtype)),
+            "target": sample_grid(self.target, xy, self.side_px),
+            "dispersion": sample_grid(self.dispersion, xy, self.side_px),
         }
         if denominator:
             fields["denominator"] = self.denominator_at(xy)
         return fields
 
 
+@dataclass
+class Denominators:
+    """Poisson denominators of n points: :attr:`MapFields.exact_denominator` for most, stored rows for the others.
+
+    Attributes:
+        exact: (m,) the value in a uniform neighbourhood.
+        slot: (n,) int32, -1 for a point in a uniform neighbourhood, else its row in ``values`` and ``slopes``
+            (rows in increasing point order).
+        values: (K, m) float64 at the points' current positions.
+        slopes: (K, m, 2) float64 gradient with respect to the point's position.
+    """
+
+    exact: np.ndarray
+    slot: np.ndarray
+    values: np.ndarray
+    slopes: np.ndarray
+
+    @property
+    def sloped(self) -> np.ndarray:
+        """(K,) indices of the points with a stored row (near borders and edges), in row order."""
+        return np.flatnonzero(self.slot >= 0)
+
+    def full(self) -> np.ndarray:
+        """(n, m) every point's denominator."""
+        out = np.broadcast_to(self.exact, (len(self.slot), len(self.exact))).copy()
+        out[self.slot >= 0] = self.values
+        return out
+
+
 class DenominatorTracker:
     """Denominators and their slopes at a moving pattern, recomputed only for points that moved.
 
-    :meth:`update` recomputes (:meth:`MapFields.denominator_at` with slopes) the
+    :meth:`update` recomputes (:meth:`MapFields.nonuniform_denominators`) the
     points that moved more than :data:`RECOMPUTE_DISTANCE` spacings since their
-    last evaluation and carries the others forward along their slope.
+    last evaluation and carries the others forward along their slope. Memory
+    follows the points near borders and edges (K), not n x m.
     """
 
     def __init__(self, fields: MapFields):
         self.fields = fields
         self.anchor: np.ndarray | None = None
 
-    def update(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Denominators (n, m) at xy (n, 2), the indices (K,) of the points near borders and edges and their slopes (K, m, 2).
-
-        The denominators are a buffer of the tracker, overwritten by the next update.
-        """
+    def update(self, xy: np.ndarray) -> Denominators:
+        """:class:`Denominators` at xy (n, 2)."""
         xy = np.asarray(xy, np.float64)
+        m = len(self.fields.radii)
         if self.anchor is None or len(self.anchor) != len(xy):
-            moved = np.arange(len(xy))
-            m = len(self.fields.radii)
-            self.anchor, self.values, self.current = xy.copy(), np.empty((len(xy), m)), np.empty((len(xy), m))
-            self.sloped, self.slopes = np.zeros(len(xy), bool), np.zeros((len(xy), m, 2), np.float32)
+            moved = np.ones(len(xy), bool)
+            self.anchor = xy.copy()
+            self.slot = np.full(len(xy), -1, np.int32)
+            self.values, self.slopes = np.empty((0, m)), np.empty((0, m, 2), np.float32)
         else:
             spacing = sample_grid(self.fields.spacing, xy, self.fields.side_px)[:, 0]
-            moved = np.flatnonzero(np.linalg.norm(xy - self.anchor, axis=1) > RECOMPUTE_DISTANCE * spacing)
-        if len(moved):
-            values, todo, slopes = self.fields.denominator_at(xy[moved], slope=True)
-            self.anchor[moved], self.values[moved] = xy[moved], values
-            self.sloped[moved] = False
-            self.sloped[moved[todo]] = True
-            self.slopes[moved] = 0.0
-            self.slopes[moved[todo]] = slopes
-        sloped = np.flatnonzero(self.sloped)
-        current = self.current
-        np.copyto(current, self.values)
-        current[sloped] += np.einsum("kjd,kd->kj", self.slopes[sloped], xy[sloped] - self.anchor[sloped])
-        return current, sloped, self.slopes[sloped].astype(np.float64)
+            moved = np.linalg.norm(xy - self.anchor, axis=1) > RECOMPUTE_DISTANCE * spacing
+        computed, values, slopes = self.fields.nonuniform_denominators(xy[moved])
+        computed = np.flatnonzero(moved)[computed]
+        kept = np.flatnonzero(~moved & (self.slot >= 0))
+        stored = np.union1d(kept, computed)  # sorted: rows in point order
+        slot = np.full(len(xy), -1, np.int32)
+        slot[stored] = np.arange(len(stored), dtype=np.int32)
+        new_values, new_slopes = np.empty((len(stored), m)), np.empty((len(stored), m, 2), np.float32)
+        new_values[slot[kept]], new_slopes[slot[kept]] = self.values[self.slot[kept]], self.slopes[self.slot[kept]]
+        new_values[slot[computed]], new_slopes[slot[computed]] = values, slopes
+        self.anchor[moved] = xy[moved]
+        self.slot, self.values, self.slopes = slot, new_values, new_slopes
+        slopes64 = new_slopes.astype(np.float64)
+        current = new_values + np.einsum("kjd,kd->kj", slopes64, xy[stored] - self.anchor[stored])
+        return Denominators(self.fields.exact_denominator, slot, current, slopes64)

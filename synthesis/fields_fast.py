@@ -14,14 +14,18 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def _bilinear(plane, x, y):  # pragma: no cover - jitted
-    height, width = plane.shape
+def corners(height, width, x, y):  # pragma: no cover - jitted
+    """Bilinear stencil at pixel-index coordinates (x, y) of a (height, width) grid, edges clamped: r0, r1, c0, c1, tx, ty."""
     x = min(max(x, 0.0), width - 1.0)
     y = min(max(y, 0.0), height - 1.0)
     c0 = min(int(x), max(width - 2, 0))
     r0 = min(int(y), max(height - 2, 0))
-    c1, r1 = min(c0 + 1, width - 1), min(r0 + 1, height - 1)
-    tx, ty = x - c0, y - r0
+    return r0, min(r0 + 1, height - 1), c0, min(c0 + 1, width - 1), x - c0, y - r0
+
+
+@numba.njit(cache=True)
+def _bilinear(plane, x, y):  # pragma: no cover - jitted
+    r0, r1, c0, c1, tx, ty = corners(plane.shape[0], plane.shape[1], x, y)
     top = plane[r0, c0] * (1.0 - tx) + plane[r0, c1] * tx
     bottom = plane[r1, c0] * (1.0 - tx) + plane[r1, c1] * tx
     return top * (1.0 - ty) + bottom * ty
@@ -32,12 +36,7 @@ def grid_samples(grid, px, py, out):  # pragma: no cover - jitted
     """Bilinear samples into out (n, C) of a (H, W, C) grid at pixel-index coordinates px, py (n,), edges clamped."""
     height, width, channels = grid.shape
     for i in numba.prange(len(px)):
-        x = min(max(px[i], 0.0), width - 1.0)
-        y = min(max(py[i], 0.0), height - 1.0)
-        c0 = min(int(x), max(width - 2, 0))
-        r0 = min(int(y), max(height - 2, 0))
-        c1, r1 = min(c0 + 1, width - 1), min(r0 + 1, height - 1)
-        tx, ty = x - c0, y - r0
+        r0, r1, c0, c1, tx, ty = corners(height, width, px[i], py[i])
         for k in range(channels):
             top = grid[r0, c0, k] * (1.0 - tx) + grid[r0, c1, k] * tx
             bottom = grid[r1, c0, k] * (1.0 - tx) + grid[r1, c1, k] * tx

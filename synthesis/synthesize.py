@@ -148,9 +148,11 @@ def synthesize(
         guide: use the guidance term (False gives the Roveri-style baseline).
         progress: show a progress bar with the loss and ETA on stderr.
         threads: threads of the numba kernels (1 is best on a busy 2-core machine).
-        on_iteration: called as ``on_iteration(step, xy)`` after every step with the
-            current (n, 2) positions (a live view, in an internal spatially sorted
-            order that stays the same for the whole run: copy to keep).
+        on_iteration: called as ``on_iteration(done, xy)`` with the steps done so far and
+            the current (n, 2) positions: once with 0 before the first step (the
+            density-matched start, a usable preview) and after every step (a live
+            view, in an internal spatially sorted order that stays the same for the
+            whole run: copy to keep).
     """
     import numba
     from tqdm import tqdm
@@ -186,6 +188,8 @@ def synthesize(
     losses: list[float] = []
     objective = step_length = leash = None
     bar = tqdm(total=plan.iterations, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
+    if on_iteration is not None:
+        on_iteration(0, xy)
     for step in range(plan.iterations):
         if objective is None or step % plan.refresh == 0:
             hood = find_neighbourhoods(fields, xy, windows.draw(rng), denominators, workspace)
@@ -206,7 +210,7 @@ def synthesize(
         away = xy - start_xy
         xy -= away * (1.0 - np.minimum(1.0, leash / np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)))
         if on_iteration is not None:
-            on_iteration(step, xy)
+            on_iteration(step + 1, xy)
         bar.set_postfix(loss=f"{loss:.4g}", refresh=False)
         bar.update()
     bar.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from patternshop.commands import (add_threads_option, check_memory, check_output, check_palette_file, map_pixels,
                                   non_negative_float, positive_float, positive_int, seed)
@@ -44,8 +45,20 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     parser.add_argument("--max-radius", type=positive_float, metavar="MM", help="SVG: largest circle radius")
     parser.add_argument("--palette", metavar="FILE", help="palette asset (default: the shipped one)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--preview-every", type=positive_int, metavar="K",
+                        help="write the points so far to the preview file at the start (the density-matched start, "
+                        "within a second of the map being read) and every K iterations, for an editor that shows the "
+                        "points while they form; each write is atomic; the file is removed when the run ends")
+    parser.add_argument("--preview", metavar="FILE", help="preview file for --preview-every (default: OUTPUT with "
+                        "'.preview' before its suffix, e.g. points.preview.txt; .npy writes fastest)")
     add_threads_option(parser)
     parser.set_defaults(func=run_synthesize)
+
+
+def _preview_path(output: str) -> str:
+    """``points.txt`` -> ``points.preview.txt``."""
+    path = Path(output)
+    return str(path.with_name(f"{path.stem}.preview{path.suffix}"))
 
 
 def run_synthesize(args: argparse.Namespace) -> None:
@@ -55,6 +68,10 @@ def run_synthesize(args: argparse.Namespace) -> None:
     svg = check_output(args.svg, args.map, suffixes=(".svg",)) if args.svg else None
     png = check_output(args.png, args.map, suffixes=(".png",)) if args.png else None
     report_path = check_output(args.report, args.map, suffixes=(".json",)) if args.report else None
+    if args.preview and not args.preview_every:
+        raise PatternshopError("--preview needs --preview-every K")
+    preview = check_output(args.preview or _preview_path(args.output), args.map, args.output,
+                           suffixes=TEXT_SUFFIXES + (NPY_SUFFIX,)) if args.preview_every else None
     if args.max_radius is not None and args.max_radius < args.min_radius:
         raise PatternshopError(f"--max-radius {args.max_radius:g} is smaller than --min-radius {args.min_radius:g}")
     check_palette_file(args.palette)
@@ -65,7 +82,7 @@ def run_synthesize(args: argparse.Namespace) -> None:
 
     from synthesis.mapio import read_map
     from synthesis.palette import load_palette
-    from synthesis.points import write_points
+    from synthesis.points import PointSet, write_points
     from synthesis.render import render_png, write_svg
     from synthesis.synthesize import point_count, synthesize
     from synthesis.tone import density_fidelity, dot_sizes
@@ -74,8 +91,18 @@ def run_synthesize(args: argparse.Namespace) -> None:
     n = args.points if args.points is not None else point_count(lab_map, args.points_per_ink)
     check_memory(args, synthesis_bytes(pixels, n), f"synthesis of {n:,} points"
                  + ("" if args.points is not None else f" ({args.points_per_ink:g} points per ink x mean density)"))
-    result = synthesize(lab_map, n=n, palette=load_palette(args.palette), schedule=args.schedule, iterations=args.iterations,
-                        seed=args.seed, progress=not args.no_progress and sys.stderr.isatty(), threads=args.threads)
+    def write_preview(done: int, xy) -> None:  # noqa: ANN001 - (n, 2) array
+        if done % args.preview_every == 0:
+            write_points(PointSet(xy.copy(), lab_map.domain), preview)
+
+    try:
+        result = synthesize(lab_map, n=n, palette=load_palette(args.palette), schedule=args.schedule,
+                            iterations=args.iterations, seed=args.seed, threads=args.threads,
+                            progress=not args.no_progress and sys.stderr.isatty(),
+                            on_iteration=write_preview if preview is not None else None)
+    finally:
+        if preview is not None:
+            preview.unlink(missing_ok=True)
     points = dot_sizes(result.points, lab_map) if args.dot_sizes else result.points
     report = result.report() | {"map": args.map, "seed": args.seed, "dot_sizes": args.dot_sizes} | density_fidelity(points, lab_map)
     with all_or_nothing():  # points, PNG, SVG and report replace the old ones together, or none does

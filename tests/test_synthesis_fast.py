@@ -1,0 +1,153 @@
+"""The synthesiser's fast paths against their plain references: cell-grid queries, field sampling, guides,
+per-point terms, compact denominators, buffer reuse, thread counts, and the CLI's progressive preview."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from patternshop import cli
+from synthesis import points as points_module
+from synthesis.cells import CellGrid, transpose
+from synthesis.edgepcf import POISSON_TOLERANCE, REGULAR_RANGE, STRUCTURE_RANGE, find_neighbourhoods, regularity, structure
+from synthesis.edgepcf_fast import FastObjective, point_terms, row_guides
+from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, guide_similarity, sample_grid, sample_grid_reference
+from synthesis.labmap import LabMap
+from synthesis.mapio import write_tiff
+from synthesis.palette import load_palette
+from synthesis.pcf import neighbour_lists
+from synthesis.stratified import spatial_order
+from synthesis.synthesize import synthesize
+from synthesis.workspace import Workspace
+
+
+def split_map(size: tuple[int, int] = (40, 60)) -> LabMap:
+    """Light blue left half, dark red right half: borders, a density edge and a correlation edge."""
+    palette = load_palette()
+    lab = np.zeros(size + (3,), np.float32)
+    lab[:, : size[1] // 2] = (80.0, *palette.preset_ab()["blue"])
+    lab[:, size[1] // 2 :] = (40.0, *palette.preset_ab()["red"])
+    return LabMap(lab)
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_cell_grid_finds_exactly_the_tree_neighbours(periodic):
+    rng = np.random.default_rng(0)
+    domain = (1.0, 0.7)
+    xy = rng.random((3000, 2)) * domain
+    centres, reach = xy[:200], rng.uniform(0.005, 0.08, 200)
+    offsets, index, distance = CellGrid(xy, domain, 0.02, periodic).query(centres, reach, exclude=np.arange(200))
+    tree = cKDTree(xy, boxsize=list(domain) if periodic else None)
+    ref_offsets, ref_index, ref_distance = neighbour_lists(tree, centres, reach)
+    for c in range(200):
+        ours = dict(zip(index[offsets[c]:offsets[c + 1]].tolist(), distance[offsets[c]:offsets[c + 1]]))
+        theirs = {int(k): d for k, d in zip(ref_index[ref_offsets[c]:ref_offsets[c + 1]], ref_distance[ref_offsets[c]:ref_offsets[c + 1]])
+                  if k != c}
+        assert ours.keys() == theirs.keys()
+        np.testing.assert_allclose([ours[k] for k in theirs], list(theirs.values()), rtol=1e-12)
+
+
+def test_cell_grid_refuses_a_reach_beyond_half_the_torus():
+    grid = CellGrid(np.random.default_rng(0).random((100, 2)), (1.0, 1.0), 0.1, periodic=True)
+    with pytest.raises(ValueError):
+        grid.query(np.zeros((1, 2)), 0.6)
+
+
+def test_transpose_is_a_stable_counting_sort():
+    entries = np.array([3, 1, 3, 0, 1, 3], np.int32)
+    order, offsets = transpose(entries, 5)
+    assert order.tolist() == np.argsort(entries, kind="stable").tolist()
+    assert offsets.tolist() == [0, 1, 3, 3, 6, 6]
+
+
+def test_field_sampling_and_guides_match_the_references():
+    fields = MapFields.build(split_map(), 2000, load_palette())
+    xy = np.random.default_rng(1).random((500, 2)) * fields.domain
+    for grid in (fields.target, fields.latent, fields.spacing):
+        np.testing.assert_array_equal(sample_grid(grid, xy, fields.side_px), sample_grid_reference(grid, xy, fields.side_px))
+    latent = sample_grid(fields.latent, xy, fields.side_px).astype(np.float64)
+    offsets, members, _ = CellGrid(xy, fields.domain, 0.05).query(xy, 0.1)
+    rows = np.repeat(np.arange(len(xy)), np.diff(offsets))
+    np.testing.assert_allclose(row_guides(latent, latent, offsets, members, GUIDE_BANDWIDTH),
+                               guide_similarity(latent[members], latent[rows]), rtol=1e-12)
+
+
+def test_point_terms_match_the_plain_formulas():
+    fields = MapFields.build(split_map(), 2000, load_palette())
+    xy = np.random.default_rng(2).random((800, 2)) * fields.domain
+    denominators = DenominatorTracker(fields).update(xy)
+    assert 0 < len(denominators.sloped) < len(xy)  # borders and the edge are stored, the rest is the exact value
+    np.testing.assert_allclose(denominators.full(), fields.denominator_at(xy), rtol=1e-12)
+    short = int(np.sum(fields.radii <= REGULAR_RANGE))
+    expected, variance, regular, structured = point_terms(fields, xy, denominators, short, POISSON_TOLERANCE, STRUCTURE_RANGE)
+    target = sample_grid(fields.target, xy, fields.side_px).astype(np.float64)
+    dispersion = sample_grid(fields.dispersion, xy, fields.side_px).astype(np.float64)
+    plain = target * fields.denominator_at(xy)
+    np.testing.assert_allclose(expected, plain, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(variance, dispersion * (np.cumsum(plain, axis=1) + 1.0), rtol=1e-5)
+    np.testing.assert_allclose(regular, regularity(target, fields.radii), atol=1e-6)
+    np.testing.assert_allclose(structured, structure(target), atol=1e-6)
+
+
+def test_tracker_recomputes_moved_points_and_carries_the_others():
+    fields = MapFields.build(split_map(), 2000, load_palette())
+    rng = np.random.default_rng(3)
+    xy = rng.random((800, 2)) * fields.domain
+    tracker = DenominatorTracker(fields)
+    before = tracker.update(xy)
+    slopes = np.zeros((len(xy), len(fields.radii), 2))
+    slopes[before.sloped] = before.slopes
+    moved = xy.copy()
+    moved[:50] = rng.random((50, 2)) * fields.domain  # far: recomputed (some become uniform, some stored)
+    moved[50:] += 1e-5  # near: carried along the slope
+    after = tracker.update(moved)
+    np.testing.assert_allclose(after.full()[:50], fields.denominator_at(moved[:50]), rtol=1e-12)
+    carried = before.full()[50:] + np.einsum("kjd,kd->kj", slopes[50:], moved[50:] - xy[50:])
+    np.testing.assert_allclose(after.full()[50:], carried, rtol=1e-12)
+
+
+def test_reused_workspace_and_threads_give_the_same_objective():
+    fields = MapFields.build(split_map(), 1500, load_palette())
+    xy = np.random.default_rng(4).random((1500, 2)) * fields.domain
+    xy = xy[spatial_order(xy, fields.domain)]
+    workspace = Workspace()
+    first = FastObjective(find_neighbourhoods(fields, xy, workspace=workspace), 1, workspace)(xy)
+    loss, gradient = first[0], first[1].copy()
+    again = FastObjective(find_neighbourhoods(fields, xy, workspace=workspace), 2, workspace)(xy)  # same buffers, 2 runs
+    assert again[0] == pytest.approx(loss, rel=1e-12)
+    np.testing.assert_allclose(again[1], gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())
+
+
+def test_synthesis_returns_points_in_the_start_order():
+    lab_map = split_map((24, 36))
+    start = []
+    result = synthesize(lab_map, n=400, seed=5, iterations=0, on_iteration=lambda done, xy: start.append(xy.copy()))
+    assert len(start) == 1 and sorted(map(tuple, start[0])) == sorted(map(tuple, result.points.xy))
+    assert not np.array_equal(start[0], result.points.xy)  # the callback sees the sorted order, the result the start's
+
+
+def test_cli_preview_every_writes_intermediate_points_then_removes_them(tmp_path, monkeypatch):
+    map_path, out = tmp_path / "m.tif", tmp_path / "p.txt"
+    write_tiff(split_map((24, 36)), map_path)
+    writes = []
+    original = points_module.write_points
+
+    def recording(points, path):  # noqa: ANN001, ANN202
+        writes.append((str(path), len(points)))
+        original(points, path)
+
+    monkeypatch.setattr(points_module, "write_points", recording)
+    argv = ["synthesize", str(map_path), str(out), "--points", "300", "--iterations", "10", "--preview-every", "4", "--no-progress"]
+    assert cli.main(argv) == 0
+    preview = str(tmp_path / "p.preview.txt")
+    assert [path for path, _ in writes] == [preview] * 3 + [str(out)]  # the start, steps 4 and 8, then the result
+    assert all(count == 300 for _, count in writes)
+    assert out.exists() and not (tmp_path / "p.preview.txt").exists()
+
+
+def test_cli_preview_needs_preview_every(tmp_path, capsys):
+    map_path = tmp_path / "m.tif"
+    write_tiff(split_map((24, 36)), map_path)
+    assert cli.main(["synthesize", str(map_path), str(tmp_path / "p.txt"), "--preview", str(tmp_path / "q.txt")]) != 0
+    assert "--preview needs --preview-every" in capsys.readouterr().err
