@@ -80,8 +80,8 @@ def _scan(sorted_xy, order, start, cell, nx, ny, box, periodic, centres, reach, 
 class CellGrid:
     """Points (n, 2) in ``[0, w] x [0, h]`` binned into cells of side about ``cell`` for radius queries.
 
-    ``periodic``: the domain is a torus (minimum-image distances; reaches must
-    stay below half the domain's side).
+    ``periodic``: the domain is a torus (minimum-image distances: a point counts
+    once, as with ``cKDTree(boxsize=...)``, even for reaches beyond half the side).
     """
 
     def __init__(self, points: np.ndarray, domain: tuple[float, float], cell: float, periodic: bool = False):
@@ -111,8 +111,6 @@ class CellGrid:
         centres = np.ascontiguousarray(centres, np.float64).reshape(-1, 2)
         count = len(centres)
         reach = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, np.float64), (count,)))
-        if self.periodic and count and 2 * reach.max() >= min(self.domain):
-            raise ValueError("periodic queries need a reach below half the domain's side")
         exclude = np.full(count, -1, np.int32) if exclude is None else np.ascontiguousarray(exclude, np.int32)
         box = np.asarray(self.domain, np.float64)
         offsets = workspace.empty(f"{name}.offsets", count + 1, np.int64)

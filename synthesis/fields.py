@@ -142,12 +142,15 @@ class MapFields:
         intensity = n * density / (density.mean() * w * h)
         radii = np.asarray(palette.radii, np.float64)
         latent = lab_map.latent().astype(np.float32)
+        # maps have few distinct colours: look each up once
+        colours, pixel_colour = np.unique(latent.reshape(-1, 2), axis=0, return_inverse=True)
+        pixel_colour = pixel_colour.reshape(latent.shape[:2])
         fields = cls(
             domain=(w, h), side_px=max(lab_map.width, lab_map.height), n=n,
             intensity=intensity[..., None].astype(np.float32),
             spacing=r_max(intensity)[..., None].astype(np.float32),
-            latent=latent, target=palette.pcf_at_latent(latent).astype(np.float32),
-            dispersion=palette.dispersion_at_latent(latent).astype(np.float32),
+            latent=latent, target=palette.pcf_at_latent(colours).astype(np.float32)[pixel_colour],
+            dispersion=palette.dispersion_at_latent(colours).astype(np.float32)[pixel_colour],
             uniform=np.empty(0, bool), radii=radii, guide=guide,
         )
         fields.uniform = fields._uniform_pixels()

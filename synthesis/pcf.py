@@ -22,11 +22,15 @@ The same tent binning is the synthesis objective's estimator
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from synthesis.cells import CellGrid
 from synthesis.errors import PatternshopError
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 PCF_BINS = 52
 BIN_WIDTH = 0.05  # in units of r_max: radii 0, 0.05, ..., 2.55
@@ -83,15 +87,15 @@ def stationary_pcf(
     n, w, h = len(points), *domain
     spacing = r_max(n, w * h)
     reach = neighbour_cutoff(radii) * spacing
-    tree, centres = _stationary_centres(points, domain, periodic, reach)
-    counts = sum(block.sum(axis=0) for block in _centre_counts(tree, centres, reach, spacing, radii))
+    grid, centres = _stationary_centres(points, domain, periodic, reach)
+    counts = sum(block.sum(axis=0) for block in _centre_counts(grid, centres, reach, spacing, radii))
     intensity = (n - 1) / (w * h)
     return counts / (len(centres) * intensity * spacing**2 * uniform_expectation(radii))
 
 
 def _stationary_centres(points: np.ndarray, domain: tuple[float, float], periodic: bool,
-                        reach: float) -> tuple[cKDTree, np.ndarray]:
-    """Tree over points (n, 2) and the centres (C, 2) whose neighbourhood within ``reach`` is complete.
+                        reach: float) -> tuple[CellGrid, np.ndarray]:
+    """Cell grid over points (n, 2) and the centres (C, 2) whose neighbourhood within ``reach`` is complete.
 
     Periodic: all points of the wrapped pattern on the torus. Otherwise minus
     sampling: the points at least ``reach`` from every border.
@@ -101,14 +105,14 @@ def _stationary_centres(points: np.ndarray, domain: tuple[float, float], periodi
     if periodic:
         wrapped = np.mod(points, [w, h])
         wrapped[wrapped >= [w, h]] = 0.0
-        return cKDTree(wrapped, boxsize=[w, h]), wrapped
+        return CellGrid(wrapped, domain, reach, periodic=True), wrapped
     centres = points[np.all((points >= reach) & (points <= np.array([w, h]) - reach), axis=1)]
     if len(centres) < 10:
         raise PatternshopError(f"only {len(centres)} of {len(points)} points lie far enough from the border to estimate a PCF")
-    return cKDTree(points), centres
+    return CellGrid(points, domain, reach), centres
 
 
-def _centre_counts(tree: cKDTree, centres: np.ndarray, reach: float, spacing: float, radii: np.ndarray):  # noqa: ANN202
+def _centre_counts(grid: CellGrid, centres: np.ndarray, reach: float, spacing: float, radii: np.ndarray):  # noqa: ANN202
     """Tent counts (c, m) around each centre, itself excluded, in blocks of :data:`CENTRE_CHUNK` centres (a generator).
 
     Distances are in units of ``spacing``; neighbours at or beyond
@@ -117,7 +121,7 @@ def _centre_counts(tree: cKDTree, centres: np.ndarray, reach: float, spacing: fl
     width, m = _width(radii), len(radii)
     for start in range(0, len(centres), CENTRE_CHUNK):
         block = centres[start:start + CENTRE_CHUNK]
-        offsets, _, distance = neighbour_lists(tree, block, reach)
+        offsets, _, distance = grid.query(block, reach)
         owner = np.repeat(np.arange(len(block)), np.diff(offsets))
         t = distance / (spacing * width)
         keep = t < m
@@ -147,14 +151,16 @@ def count_dispersion(points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0
     n, w, h = len(points), *domain
     spacing = r_max(n, w * h)
     reach = neighbour_cutoff(radii) * spacing
-    tree, centres = _stationary_centres(points, domain, periodic, reach)
-    counts = np.cumsum(np.concatenate(list(_centre_counts(tree, centres, reach, spacing, radii))), axis=1)
+    grid, centres = _stationary_centres(points, domain, periodic, reach)
+    counts = np.cumsum(np.concatenate(list(_centre_counts(grid, centres, reach, spacing, radii))), axis=1)
     return counts.var(axis=0) / (counts.mean(axis=0) + 1.0)
 
 
 def neighbour_lists(tree: cKDTree, centres: np.ndarray, reach: np.ndarray | float,
                     k: int = FIRST_NEIGHBOURS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every tree point within ``reach`` (scalar or (C,)) of each centre (C, 2), as compact lists (the centre itself included).
+
+    The plain reference of :meth:`synthesis.cells.CellGrid.query` (tests compare them).
 
     Returns offsets (C + 1,) int64 (the entries of centre c are ``offsets[c]:offsets[c + 1]``),
     indices (E,) int64 and distances (E,). One k-NN query serves most centres;

@@ -36,6 +36,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -45,6 +46,9 @@ from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
 from synthesis.workspace import Workspace
+
+if TYPE_CHECKING:
+    from synthesis.edgepcf import WindowSampler
 
 
 @dataclass(frozen=True)
@@ -217,18 +221,19 @@ def synthesize(
     points = np.empty_like(xy)
     points[order] = xy  # the start's order
     return SynthesisResult(PointSet(points, fields.domain), plan.name, plan.iterations,
-                           time.perf_counter() - start, setup, losses, final_loss(fields, xy, denominators, workspace))
+                           time.perf_counter() - start, setup, losses, final_loss(fields, xy, denominators, workspace, windows))
 
 
 def final_loss(fields: MapFields, xy: np.ndarray, denominators: DenominatorTracker | None = None,
-               workspace: Workspace | None = None) -> float:
+               workspace: Workspace | None = None, windows: WindowSampler | None = None) -> float:
     """The objective at positions xy (n, 2) with fresh pair lists and fixed-seed windows (comparable across runs and patterns).
 
     ``denominators``: the run's tracker, so only points that moved since their last evaluation are integrated again;
-    ``workspace``: the run's buffers (overwritten).
+    ``workspace``: the run's buffers (overwritten); ``windows``: the run's window sampler (saves building one).
     """
-    from synthesis.edgepcf import find_neighbourhoods
+    from synthesis.edgepcf import WindowSampler, find_neighbourhoods
     from synthesis.edgepcf_fast import FastObjective
 
-    hood = find_neighbourhoods(fields, xy, denominators=denominators, workspace=workspace)
+    centres = (windows or WindowSampler(fields)).draw(np.random.default_rng(0))  # the fixed-seed windows
+    hood = find_neighbourhoods(fields, xy, centres, denominators, workspace)
     return FastObjective(hood, workspace=workspace)(np.asarray(xy, np.float64), gradient=False)[0]
