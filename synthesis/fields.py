@@ -106,7 +106,8 @@ class MapFields:
         latent: (H, W, 2) guide z in [0, 1].
         target: (H, W, m) target PCF.
         dispersion: (H, W, m) the target's count dispersion (variance model; :func:`synthesis.pcf.count_dispersion`).
-        uniform: (H, W) bool, the pixel's neighbourhood is uniform (see :meth:`_uniform_pixels`).
+        uniform: (H, W) bool, the pixel's neighbourhood is uniform (see :meth:`_flat_pixels`).
+        flat: (H, W) bool, the pixel's neighbourhood has one intensity and latent (it may touch the border).
         radii: (m,) radii in units of r_max.
         guide: whether the guidance term is used.
     """
@@ -120,6 +121,7 @@ class MapFields:
     target: np.ndarray
     dispersion: np.ndarray
     uniform: np.ndarray
+    flat: np.ndarray
     radii: np.ndarray
     guide: bool = True
 
@@ -151,13 +153,14 @@ class MapFields:
             spacing=r_max(intensity)[..., None].astype(np.float32),
             latent=latent, target=palette.pcf_at_latent(colours).astype(np.float32)[pixel_colour],
             dispersion=palette.dispersion_at_latent(colours).astype(np.float32)[pixel_colour],
-            uniform=np.empty(0, bool), radii=radii, guide=guide,
+            uniform=np.empty(0, bool), flat=np.empty(0, bool), radii=radii, guide=guide,
         )
-        fields.uniform = fields._uniform_pixels()
+        fields.flat, fields.uniform = fields._flat_pixels()
         return fields
 
-    def _uniform_pixels(self) -> np.ndarray:
-        """(H, W) bool: the pixel's whole neighbourhood (cutoff x spacing) has one intensity and latent, no border.
+    def _flat_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) bool each: the pixel's whole neighbourhood (cutoff x spacing) has one intensity and latent (flat),
+        and in addition stays inside the domain (uniform).
 
         Square windows of power-of-two half-sizes, each pixel tested at the
         smallest one that covers its reach (conservative).
@@ -167,6 +170,7 @@ class MapFields:
         channels = [np.log(self.intensity[..., 0]), self.latent[..., 0], self.latent[..., 1]]
         rows, cols = np.indices((height, width))
         to_border = np.minimum(np.minimum(rows, height - 1 - rows), np.minimum(cols, width - 1 - cols))
+        flat_pixels = np.zeros((height, width), bool)
         uniform = np.zeros((height, width), bool)
         half = 1
         while True:
@@ -177,9 +181,10 @@ class MapFields:
                     size = 2 * half + 1
                     spread = ndimage.maximum_filter(channel, size, mode="nearest") - ndimage.minimum_filter(channel, size, mode="nearest")
                     flat &= spread <= tolerance
+                flat_pixels |= need & flat
                 uniform |= need & flat & (to_border >= half)
             if half >= max(height, width) or half >= reach.max():
-                return uniform
+                return flat_pixels, uniform
             half *= 2
 
     def denominator_at(self, xy: np.ndarray, slope: bool = False):  # noqa: ANN201 - array or (array, array, array)
@@ -213,30 +218,58 @@ class MapFields:
         return POISSON_PAIR_SCALE * uniform_expectation(self.radii)
 
     def nonuniform_denominators(self, xy: np.ndarray, slope: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`denominator_at` for the points that need quadrature only: their indices (K,) in xy (n, 2), values (K, m), slopes (K, m, 2).
+        """:meth:`denominator_at` for the points that need more than the exact value: their indices (K,) in xy (n, 2),
+        values (K, m) and slopes (K, m, 2) (zeros unless ``slope``).
 
-        The other points have :attr:`exact_denominator`; slopes are zeros unless ``slope``.
+        Points whose neighbourhood is flat but crosses the domain border (every
+        map has a border) get the exact value times the tent-weighted share of
+        each quadrature ring inside the domain, computed in closed form
+        (:func:`synthesis.fields_fast.border_shares`: no node noise, a fraction
+        of the cost); the others (edges, gradients) get the polar quadrature.
         """
         xy = np.asarray(xy, np.float64)
-        m, exact = len(self.radii), self.exact_denominator
+        m = len(self.radii)
         height, width, _ = self.intensity.shape
         col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
         row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
         todo = np.flatnonzero(~self.uniform[row, col])
         values, gradient = np.empty((len(todo), m)), np.zeros((len(todo), m, 2))
-        if len(todo):
-            spacing = sample_grid(self.spacing, xy[todo], self.side_px)[:, 0]
-            latent = sample_grid(self.latent, xy[todo], self.side_px)
-            own = sample_grid(self.intensity, xy[todo], self.side_px)[:, 0]
-            values[:] = self._quadrature_at(xy[todo], spacing, latent, own) * exact
-            if slope:
-                for axis in (0, 1):
-                    step = np.zeros(2)
-                    step[axis] = 1.0
-                    shift = (SLOPE_STEP * spacing)[:, None] * step
-                    ahead = self._quadrature_at(xy[todo] + shift, spacing, latent, own) * exact
-                    gradient[..., axis] = (ahead - values) / (SLOPE_STEP * spacing)[:, None]
+        if not len(todo):
+            return todo, values, gradient
+        at = xy[todo]
+        spacing = sample_grid(self.spacing, at, self.side_px)[:, 0].astype(np.float64)
+        border = self.flat[row[todo], col[todo]]
+        general = ~border
+        latent = sample_grid(self.latent, at[general], self.side_px)
+        own = sample_grid(self.intensity, at[general], self.side_px)[:, 0]
+
+        def ratios(shift: np.ndarray) -> np.ndarray:
+            out = np.empty((len(at), m))
+            out[border] = self._border_ratio(at[border] + shift[border], spacing[border])
+            out[general] = self._quadrature_at(at[general] + shift[general], spacing[general], latent, own)
+            return out * self.exact_denominator
+
+        values[:] = ratios(np.zeros_like(at))
+        if slope:
+            for axis in (0, 1):
+                shift = np.zeros_like(at)
+                shift[:, axis] = SLOPE_STEP * spacing
+                gradient[..., axis] = (ratios(shift) - values) / (SLOPE_STEP * spacing)[:, None]
         return todo, values, gradient
+
+    def _border_ratio(self, xy: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+        """(k, m) denominator ratio (1 away from the border) of points xy (k, 2) with spacing (k,) in a flat neighbourhood."""
+        from synthesis.fields_fast import border_shares
+
+        ring_tent, _ = self._rings
+        height, width, _ = self.intensity.shape
+        shares = border_shares(xy[:, 0], xy[:, 1], spacing, width / self.side_px, height / self.side_px, self._ring_radii)
+        return (shares @ ring_tent) / ring_tent.sum(0)
+
+    @functools.cached_property
+    def _ring_radii(self) -> np.ndarray:
+        """(R,) radii of the quadrature's rings, in units of the spacing."""
+        return np.unique(self._quadrature[0])
 
     def _quadrature_at(self, xy: np.ndarray, spacing: np.ndarray, latent: np.ndarray, own: np.ndarray) -> np.ndarray:
         """(k, m) quadrature ratio (1 in a uniform neighbourhood) around points xy (k, 2) with spacing (k,), latent (k, 2), intensity (k,).

@@ -43,6 +43,35 @@ def grid_samples(grid, px, py, out):  # pragma: no cover - jitted
             out[i, k] = top * (1.0 - ty) + bottom * ty
 
 
+@numba.njit(cache=True)
+def _outside_arc(distance, radius):  # pragma: no cover - jitted
+    """Half-angle of the arc of a circle of ``radius`` beyond a straight border ``distance`` away (0 if it does not reach)."""
+    return math.acos(max(distance / radius, -1.0)) if distance < radius else 0.0  # a centre beyond it: up to a whole turn
+
+
+@numba.njit(parallel=True, cache=True)
+def border_shares(x, y, spacing, width, height, ring_radii):  # pragma: no cover - jitted
+    """(k, R) share of each circle (radius ring_radii * spacing) around points (x, y) inside ``[0, width] x [0, height]``.
+
+    Closed form: the arcs beyond the left, right, bottom and top borders are
+    centred a quarter turn apart, so (while a circle is narrower than the
+    domain) their union is their sum minus the overlaps of neighbouring pairs
+    (corners).
+    """
+    out = np.empty((len(x), len(ring_radii)))
+    quarter = 0.5 * math.pi
+    for i in numba.prange(len(x)):
+        for r in range(len(ring_radii)):
+            radius = ring_radii[r] * spacing[i]
+            left, right = _outside_arc(x[i], radius), _outside_arc(width - x[i], radius)
+            bottom, top = _outside_arc(y[i], radius), _outside_arc(height - y[i], radius)
+            outside = 2.0 * (left + right + bottom + top)
+            for first, second in ((right, top), (top, left), (left, bottom), (bottom, right)):
+                outside -= max(0.0, min(first, quarter + second) - max(-first, quarter - second))  # corner
+            out[i, r] = min(max(1.0 - outside / (2.0 * math.pi), 0.0), 1.0)
+    return out
+
+
 @numba.njit(parallel=True, cache=True)
 def ring_means(intensity, latent_a, latent_b, px0, py0, spacing_px, centre_a, centre_b, own,
                dx, dy, node_ring, rings, guide, bandwidth):  # pragma: no cover - jitted

@@ -154,3 +154,37 @@ def test_cli_preview_needs_preview_every(tmp_path, capsys):
     write_tiff(split_map((24, 36)), map_path)
     assert cli.main(["synthesize", str(map_path), str(tmp_path / "p.txt"), "--preview", str(tmp_path / "q.txt")]) != 0
     assert "--preview needs --preview-every" in capsys.readouterr().err
+
+
+def test_border_shares_match_dense_angular_sampling():
+    from synthesis.fields_fast import border_shares
+
+    rng = np.random.default_rng(1)
+    width, height = 1.0, 0.7
+    x = np.concatenate([rng.random(100) * 0.05, rng.random(100) * width, width - rng.random(50) * 0.05])
+    y = np.concatenate([rng.random(100) * 0.05, height - rng.random(100) * 0.04, rng.random(50) * height])
+    radii = np.linspace(0.001, 0.08, 20)
+    shares = border_shares(x, y, np.ones_like(x), width, height, radii)
+    theta = (np.arange(20000) + 0.5) / 20000 * 2 * np.pi
+    px = x[:, None, None] + radii[None, :, None] * np.cos(theta)
+    py = y[:, None, None] + radii[None, :, None] * np.sin(theta)
+    dense = ((px >= 0) & (px <= width) & (py >= 0) & (py <= height)).mean(-1)
+    np.testing.assert_allclose(shares, dense, atol=5e-4)
+
+
+def test_border_denominators_agree_with_the_quadrature():
+    palette = load_palette()
+    lab = np.zeros((48, 72, 3), np.float32)
+    lab[...] = (50.0, *palette.preset_ab()["blue"])
+    fields = MapFields.build(LabMap(lab), 5000, palette)
+    rng = np.random.default_rng(0)
+    xy = np.concatenate([rng.random((200, 2)) * [0.03, fields.domain[1]], rng.random((100, 2)) * 0.03])  # a side, a corner
+    todo, values, _ = fields.nonuniform_denominators(xy, slope=False)
+    assert fields.flat[(xy[todo, 1] * fields.side_px).astype(int), (xy[todo, 0] * fields.side_px).astype(int)].all()
+    at = xy[todo]
+    spacing = sample_grid(fields.spacing, at, fields.side_px)[:, 0].astype(np.float64)
+    quadrature = fields._quadrature_reference(at, spacing, sample_grid(fields.latent, at, fields.side_px),
+                                              sample_grid(fields.intensity, at, fields.side_px)[:, 0]) * fields.exact_denominator
+    # the closed form is the quadrature's limit: they differ by its node noise (8 nodes on the smallest rings)
+    assert np.abs(values - quadrature).mean() < 0.01 * fields.exact_denominator.mean()
+    assert (np.abs(values - quadrature) <= 0.15 * fields.exact_denominator).all()  # one node of a 9-node ring is 11 %
