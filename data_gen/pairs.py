@@ -16,6 +16,14 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
   the files together), and each run rebuilds the manifest from the shards present.
 * Deterministic: item i uses the random stream ``(seed, i)``, whatever the
   number of workers or shards.
+* Other methods (issue 14): with ``other_methods.share`` > 0, that share of
+  the items takes its points from another stippler or reference process
+  (:mod:`data_gen.stipplers`: density-proportional Poisson, weighted Lloyd,
+  variable-radius Poisson-disk, warped jitter, Thomas clusters, drawn by
+  ``other_methods.methods`` weights) applied to the map's density, and its
+  a, b become the method's preset colour (:data:`data_gen.stipplers.LABELS`)
+  of the pairs' palette, so the network does not learn the synthesiser's
+  fingerprint. At share 0 (the default) items and config keys are as before.
 
 Settings: ``conf/pairs.yaml`` and ``conf/dataset/*.yaml``; any value can be
 overridden (``workers=2 synthesis.points_per_ink=50000 out_dir=/data/pairs``).
@@ -41,6 +49,7 @@ from data_gen.provenance import file_sha256, git_commit, machine, run_config_com
 from data_gen.shards import PARTS, Pairs, map_to_target, part_path, read_manifest, read_shard, shard_path, target_to_map, write_manifest
 from synthesis.atomic import atomic_write_text
 from synthesis.errors import PatternshopError
+from synthesis.labmap import LabMap
 
 FORMAT = 1  # pair folder layout (data_gen.shards); bump when it changes
 
@@ -58,6 +67,7 @@ class PairSettings:
     schedule: str
     iterations: int | None
     palette: str | None  # None: the shipped palette
+    other_methods: dict  # {"share": float in [0, 1], "methods": {name: weight}} (see the module docstring)
 
     @classmethod
     def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
@@ -66,7 +76,8 @@ class PairSettings:
         try:
             return cls(dataset=OmegaConf.to_container(cfg.dataset, resolve=True), seed=int(cfg.seed), map_size=int(cfg.map_size),
                        raster_size=int(cfg.raster_size), chunk=int(cfg.chunk), points_per_ink=float(cfg.synthesis.points_per_ink),
-                       schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette)
+                       schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette,
+                       other_methods=other_methods_setting(OmegaConf.to_container(cfg.get("other_methods") or {}, resolve=True)))
         except (TypeError, ValueError) as exc:  # e.g. map_size=big: a user error, one line like the others
             raise PatternshopError(f"bad pair setting: {exc}") from exc
 
@@ -79,11 +90,50 @@ class PairSettings:
         """Short hash of the settings and the palette file's contents."""
         content = {"format": FORMAT, **asdict(self), "palette": file_sha256(self.palette_file())}
         content["dataset"] = {k: v for k, v in self.dataset.items() if k != "items"}  # only bounds how many
+        if not self.other_methods["share"]:  # folders made before the option keep their key
+            del content["other_methods"]
         return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def other_methods_setting(config: dict) -> dict:
+    """``other_methods`` config -> {"share", "methods"} checked: share in [0, 1], known methods with weights >= 0."""
+    from data_gen.stipplers import LABELS
+
+    share = float(config.get("share", 0.0))
+    methods = {str(name): float(weight) for name, weight in (config.get("methods") or {name: 1.0 for name in LABELS}).items()}
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"other_methods.share must be in [0, 1], got {share:g}")
+    unknown = sorted(set(methods) - set(LABELS))
+    if unknown:
+        raise ValueError(f"unknown other_methods.methods {unknown}; choose from {', '.join(LABELS)}")
+    if share and (min(methods.values(), default=0.0) < 0 or sum(methods.values()) <= 0):
+        raise ValueError("other_methods.methods needs weights >= 0 with a positive sum")
+    return {"share": share, "methods": methods}
+
+
+def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap, n: int,
+                        rng: np.random.Generator) -> tuple[LabMap, np.ndarray, str] | None:
+    """(map with the method's preset a, b, its points (n, 2), method name) for an item drawn as another method's, else None.
+
+    Draws from ``rng`` only when ``other_methods.share`` > 0, so the items of share-0 folders are unchanged.
+    """
+    from data_gen.stipplers import LABELS, METHODS
+
+    share, weights = settings.other_methods["share"], settings.other_methods["methods"]
+    if not share or rng.random() >= share:
+        return None
+    names = sorted(weights)
+    probabilities = np.array([weights[name] for name in names])
+    method = names[int(rng.choice(len(names), p=probabilities / probabilities.sum()))]
+    a, b = maker.palette.preset_ab()[LABELS[method]]
+    lab = np.array(lab_map.lab)
+    lab[..., 1:] = (a, b)
+    labelled = target_to_map(map_to_target(LabMap(lab)))  # 8-bit, as the stored target
+    return labelled, METHODS[method](labelled.density(), n, labelled.domain, rng), method
+
+
 def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
-    """Pair ``item``: map, synthesised points, raster. Raises :class:`SourceError` for a bad source."""
+    """Pair ``item``: map, synthesised (or other methods') points, raster. Raises :class:`SourceError` for a bad source."""
     from synthesis.raster import point_raster
     from synthesis.synthesize import point_count, synthesize
 
@@ -93,14 +143,20 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
     n = point_count(lab_map, settings.points_per_ink)
     if n < 2:
         raise SourceError(f"{maker.source(item)}: only {n} point(s) at points_per_ink={settings.points_per_ink:g}")
-    synthesis_seed = int(rng.integers(2**31))
-    result = synthesize(lab_map, n=n, palette=maker.palette, schedule=settings.schedule,
-                        iterations=settings.iterations, seed=synthesis_seed)
-    xy = result.points.xy.astype(np.float32)
-    meta = {"item": item, "source": maker.source(item), "n": n, "seed": synthesis_seed,
-            "final_loss": round(result.final_loss, 6), "seconds": round(result.seconds, 3)}
+    other = other_method_points(settings, maker, lab_map, n, rng)
+    if other is not None:
+        lab_map, points, method = other
+        target, xy = map_to_target(lab_map), points.astype(np.float32)
+        meta = {"item": item, "source": maker.source(item), "n": len(xy), "method": method}
+    else:
+        synthesis_seed = int(rng.integers(2**31))
+        result = synthesize(lab_map, n=n, palette=maker.palette, schedule=settings.schedule,
+                            iterations=settings.iterations, seed=synthesis_seed)
+        xy = result.points.xy.astype(np.float32)
+        meta = {"item": item, "source": maker.source(item), "n": n, "seed": synthesis_seed, "method": "synthesis",
+                "final_loss": round(result.final_loss, 6), "seconds": round(result.seconds, 3)}
     return Pairs(item=np.array([item], np.int64), raster=point_raster(xy, settings.raster_size)[None].astype(np.float16),
-                 target=target[None], points=xy, offsets=np.array([0, n], np.int64), meta=[meta])
+                 target=target[None], points=xy, offsets=np.array([0, len(xy)], np.int64), meta=[meta])
 
 
 # --- workers -------------------------------------------------------------------

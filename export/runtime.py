@@ -183,11 +183,17 @@ def points_to_map(points: PointSet, model: OnnxModel, width: int | None = None,
 
 @dataclass(frozen=True)
 class Inference:
-    """What :func:`infer_map` made: the map, the scale it read the pattern at, and the correlation evidence."""
+    """What :func:`infer_map` made: the map, the scale it read the pattern at, and the correlation evidence.
+
+    ``output`` is the network's raw output (3, S, S) in [0, 1] on the padded raster, ``pixels_per_unit`` the
+    raster's pixels per unit of the domain (the domain fills its top-left ``w R`` x ``h R`` pixels).
+    """
 
     lab_map: LabMap
     scale: ScaleChoice
     evidence: EvidenceSummary
+    output: np.ndarray
+    pixels_per_unit: float
 
     def report(self) -> dict:
         return {"width": self.lab_map.width, "height": self.lab_map.height, **self.scale.report(), **self.evidence.report()}
@@ -212,13 +218,13 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
         if message:
             warnings.warn(message, PatternshopWarning, stacklevel=2)
     raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, scale.points_per_ink)
-    lab_map = output_to_map(model.predict(raster[None, None])[0], points.domain, pixels_per_unit,
-                            map_width(points.domain, model, width))
+    output = model.predict(raster[None, None])[0]
+    lab_map = output_to_map(output, points.domain, pixels_per_unit, map_width(points.domain, model, width))
     evidence = local_evidence(points, lab_map.L.shape, pixels_per_unit)
     source = False
     if fill_thin:
         lab_map, source = fill_thin_correlation(lab_map, evidence)
-    return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source))
+    return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source), output, pixels_per_unit)
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

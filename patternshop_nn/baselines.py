@@ -48,8 +48,8 @@ def latent_mae(predicted: np.ndarray, target: np.ndarray) -> float:
 
 
 def kde_density(raster: np.ndarray, points_per_ink: float, bandwidth_px: float) -> np.ndarray:
-    """(S, S) density in [0, 1] from a point-count raster (S, S) of the unit square."""
-    side = raster.shape[-1]
+    """(H, W) density in [0, 1] from a point-count raster (H, W) of a domain whose long side is 1 (the unit square: S, S)."""
+    side = max(raster.shape[-2:])
     blurred = gaussian_filter(np.asarray(raster, np.float64), bandwidth_px, mode="constant")
     return np.clip(blurred * side * side / points_per_ink, 0.0, 1.0)
 

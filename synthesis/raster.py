@@ -20,10 +20,12 @@ import numpy as np
 RASTER_SIZE = 256  # pixels per side of the network input (paper: 256 x 256)
 
 
-def point_raster(xy: np.ndarray, size: int = RASTER_SIZE) -> np.ndarray:
+def point_raster(xy: np.ndarray, size: int = RASTER_SIZE, clip: bool = True) -> np.ndarray:
     """(size, size) float32 raster in [0, 1] of points xy (n, 2) in map units (see module docstring).
 
-    Points outside ``[0, 1]^2`` are clamped onto the border pixels.
+    Points outside ``[0, 1]^2`` are clamped onto the border pixels. ``clip=False`` keeps the sums (points per
+    pixel, any value >= 0): a density estimate's input, free of the aliasing that binning a regular pattern
+    into pixels gives.
     """
     if size < 2:
         raise ValueError(f"raster size must be at least 2, got {size}")
@@ -39,4 +41,4 @@ def point_raster(xy: np.ndarray, size: int = RASTER_SIZE) -> np.ndarray:
         weights = np.concatenate([(1 - tr) * (1 - tc), (1 - tr) * tc, tr * (1 - tc), tr * tc])
         raster = np.bincount(taps, weights, minlength=stride * stride)
     raster = raster.reshape(stride, stride)[:size, :size]
-    return np.clip(raster, 0.0, 1.0).astype(np.float32)
+    return (np.clip(raster, 0.0, 1.0) if clip else raster).astype(np.float32)

@@ -608,3 +608,38 @@ def test_pairs_command_prints_the_summary(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["made_now"] == 2 and summary["pairs_in_folder"] == 2
     assert (out / MANIFEST).is_file()
+
+
+# --- other methods' points (issue 14) ---------------------------------------------------------
+def test_other_methods_make_labelled_pairs(tmp_path):
+    """share=1: every item's points come from a stippler of data_gen.stipplers, its a,b are the method's preset."""
+    from data_gen.stipplers import LABELS
+    from synthesis.palette import load_palette
+    from synthesis.raster import point_raster
+
+    folder = tmp_path / "other"
+    generate(compose_config("pairs", [f"out_dir={folder}", "num_items=5", "workers=1", "map_size=64", "raster_size=64",
+                                      "synthesis.points_per_ink=1500", "other_methods.share=1.0"]))
+    pairs = load_pairs(folder)
+    presets = load_palette().preset_ab()
+    methods = []
+    for k, meta in enumerate(pairs.meta):
+        method = meta["method"]
+        methods.append(method)
+        a, b = presets[LABELS[method]]
+        assert np.all(pairs.target[k][..., 1] == round(a) + 128) and np.all(pairs.target[k][..., 2] == round(b) + 128)
+        assert len(pairs.points_of(k)) == meta["n"] > 100
+        np.testing.assert_allclose(pairs.raster[k], point_raster(pairs.points_of(k), 64), atol=1e-3)
+    assert len(set(methods)) >= 2
+
+
+def test_other_methods_share_zero_keeps_items_and_keys():
+    def settings(*overrides):
+        return PairSettings.from_config(compose_config("pairs", ["map_size=64", *overrides]))
+
+    assert settings().key() == settings("other_methods.methods={random: 2.0}").key()
+    assert settings().key() != settings("other_methods.share=0.5").key()
+    with pytest.raises(PatternshopError, match="unknown other_methods.methods"):
+        settings("other_methods.share=0.5", "+other_methods.methods.voronoi=1")
+    with pytest.raises(PatternshopError, match=r"share must be in \[0, 1\]"):
+        settings("other_methods.share=2")

@@ -1,0 +1,79 @@
+"""The out-of-distribution evaluation (issue 14): patternshop_nn/ood.py and `python -m patternshop_nn.evaluate`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from data_gen.stipplers import METHODS
+from export.onnx import export_onnx
+from patternshop_nn import evaluate, ood
+from patternshop_nn.networks import DualBranchUNet
+from synthesis.labmap import LabMap
+from synthesis.palette import load_palette
+
+
+def test_phase_locked_share_sees_a_lattice_and_not_noise() -> None:
+    rng = np.random.default_rng(0)
+    tile = rng.random((1, 64, 64))
+    assert ood.phase_locked_share(np.tile(tile, (1, 4, 4)), 64) == pytest.approx(1.0)
+    noise = rng.random((2, 256, 256))
+    assert ood.phase_locked_share(noise, 64) == pytest.approx(64 * 64 / 256**2, rel=0.2)  # chance: p^2 / pixels
+    assert ood.phase_locked_share(np.ones((1, 128, 128)), 32) == 0.0
+
+
+def test_nearest_preset_share() -> None:
+    palette = load_palette()
+    presets = palette.preset_ab()
+    lab = np.zeros((4, 4, 3), np.float32)
+    lab[..., 0] = 50
+    lab[..., 1:] = presets["blue"]
+    lab[:1, :, 1:] = presets["red"]
+    assert ood.nearest_preset_share(LabMap(lab), palette, "blue") == pytest.approx(0.75)
+
+
+def test_only_the_four_pictures_and_their_domains() -> None:
+    density, domain = ood.picture_density("coins")
+    assert density.shape == (303, 384) and domain == pytest.approx((1.0, 303 / 384))
+    assert 0 <= density.min() and density.max() <= 1
+    with pytest.raises(ValueError, match="evaluation pictures"):
+        ood.picture_density("chelsea")
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_stipplers_follow_the_density(method: str) -> None:
+    """Every method puts about n points in the domain, at least 2.5 times as many in the (4 times) darker half as in the light one."""
+    density = np.full((48, 64), 0.2)
+    density[:, 32:] = 0.8
+    xy = METHODS[method](density, 1500, (1.0, 0.75), np.random.default_rng(0))
+    assert abs(len(xy) - 1500) <= 45
+    assert np.all((xy >= 0) & (xy <= [1.0, 0.75]))
+    assert np.sum(xy[:, 0] > 0.5) > 2.5 * np.sum(xy[:, 0] < 0.5)  # 4 expected; Thomas clusters vary and spill
+
+
+def test_quick_evaluation_writes_json_markdown_and_sheets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole suite on a tiny untrained model, with the sets cut down to seconds."""
+    torch.manual_seed(0)
+    model = tmp_path / "tiny.onnx"
+    export_onnx(DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest"), model, {"points_per_ink": 8000, "name": "tiny"})
+    monkeypatch.setattr(ood, "STIPPLE_POINTS", 1500)
+    monkeypatch.setattr(ood, "QUICK", {"pictures": ("coins",), "densities": (0.05,), "counts": (200,)})
+    monkeypatch.setattr(ood, "STATIONARY", {name: ood.STATIONARY[name] for name in ("poisson", "jitter")})
+    out = tmp_path / "eval.json"
+    assert evaluate.main(["--quick", "--model", str(model), "--out", str(out), "--previews", str(tmp_path / "sheets")]) == 0
+    results = json.loads(out.read_text())
+    assert [row["method"] for row in results["stipplings"]] == list(ood.STIPPLERS)
+    assert {row["process"] for row in results["stationary"]} == {"poisson", "jitter"}
+    assert len(results["targets"]) == 9 and results["point_counts"][0]["n"] == 200
+    assert "| empty raster: min L | >= 97 |" in out.with_suffix(".md").read_text()
+    assert sorted(p.name for p in (tmp_path / "sheets").iterdir()) == ["ood_inventions.png", "ood_stationary.png", "ood_stipplings.png"]
+
+
+def test_a_checkpoint_needs_its_training_scale(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert evaluate.main(["--model", str(tmp_path / "run.ckpt"), "--out", str(tmp_path / "e.json")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--trained-points-per-ink" in err
