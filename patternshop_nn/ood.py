@@ -115,9 +115,10 @@ def count_raster(xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return point_raster(np.asarray(xy).reshape(-1, 2), max(shape), clip=False)[:height, :width].astype(np.float64)
 
 
-def points_per_ink_of(n: int, density: np.ndarray, domain: tuple[float, float]) -> float:
-    """The true scale of n points drawn from ``density``: points of a fully dark map of the same domain."""
-    return n / (float(np.mean(density)) * domain[0] * domain[1])
+def points_per_ink_of(n: int, density: np.ndarray) -> float:
+    """The true scale of n points drawn from ``density``: points of a fully dark map of the same domain
+    (the synthesiser's ``n = points_per_ink x mean density``)."""
+    return n / float(np.mean(density))
 
 
 def l_scores(truth_L: np.ndarray, L: np.ndarray) -> tuple[float, float]:
@@ -127,10 +128,16 @@ def l_scores(truth_L: np.ndarray, L: np.ndarray) -> tuple[float, float]:
     return float(structural_similarity(truth_L, L, data_range=100.0)), float(np.mean(np.abs(truth_L - L)))
 
 
+def kde_L(xy: np.ndarray, shape: tuple[int, int], points_per_ink: float, bandwidth_px: float) -> np.ndarray:
+    """(H, W) L of a Gaussian KDE of points on a map of ``shape`` read at ``points_per_ink`` (the synthesiser's)."""
+    height, width = shape
+    full_ink_per_unit_square = points_per_ink * max(shape) ** 2 / (height * width)  # kde_density's convention
+    return 100.0 * (1.0 - kde_density(count_raster(xy, shape), full_ink_per_unit_square, bandwidth_px))
+
+
 def kde_scores(xy: np.ndarray, truth_L: np.ndarray, points_per_ink: float) -> dict:
     """Best SSIM and best MAE of the KDE's L over :data:`KDE_BANDWIDTHS` (map pixels), each with its bandwidth."""
-    counts = count_raster(xy, truth_L.shape)
-    scores = {h: l_scores(truth_L, 100.0 * (1.0 - kde_density(counts, points_per_ink, h))) for h in KDE_BANDWIDTHS}
+    scores = {h: l_scores(truth_L, kde_L(xy, truth_L.shape, points_per_ink, h)) for h in KDE_BANDWIDTHS}
     best_ssim = max(scores, key=lambda h: scores[h][0])
     best_mae = min(scores, key=lambda h: scores[h][1])
     return {"kde_ssim": round(scores[best_ssim][0], 4), "kde_ssim_bandwidth_px": best_ssim,
@@ -144,7 +151,7 @@ def stipplings(model: OnnxModel, pictures: tuple[str, ...], seed: int, fill: boo
         density, domain = picture_density(picture)
         for method in STIPPLERS:
             xy = METHODS[method](density, STIPPLE_POINTS, domain, np.random.default_rng(seed))
-            scale = points_per_ink_of(len(xy), density, domain)
+            scale = points_per_ink_of(len(xy), density)
             lab_map = infer_map(PointSet(xy, domain), model, scale=ScaleChoice(scale, False), fill_thin=fill).lab_map
             truth = resample(density, lab_map.L.shape)
             truth_L = 100.0 * (1.0 - truth)
@@ -157,9 +164,8 @@ def stipplings(model: OnnxModel, pictures: tuple[str, ...], seed: int, fill: boo
                    "full_ink_pixels": int(full.sum()),
                    "full_ink_mean_L": round(float(lab_map.L[full].mean()), 2) if full.sum() >= 50 else None}
             rows.append(row)
-            kde_L = 100.0 * (1.0 - kde_density(count_raster(xy, truth_L.shape), scale, kde["kde_mae_bandwidth_px"]))
-            previews.append((f"{picture} {method}", [grey(truth_L), points_image(xy, truth_L.shape),
-                                                     lab_map.to_srgb(), grey(kde_L)]))
+            previews.append((f"{picture} {method}", [grey(truth_L), points_image(xy, truth_L.shape), lab_map.to_srgb(),
+                                                     grey(kde_L(xy, truth_L.shape, scale, kde["kde_mae_bandwidth_px"]))]))
     return rows
 
 
