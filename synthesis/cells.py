@@ -123,22 +123,3 @@ class CellGrid:
         distance = workspace.empty(f"{name}.distance", offsets[-1]) if distances else np.empty(0)
         _scan(*args, index, distance, True)
         return offsets, index, distance if distances else None
-
-
-@numba.njit(cache=True)
-def transpose(entries, count):  # pragma: no cover - jitted
-    """Entry order (M,) int64 sorted by target, stable, and offsets (count + 1,) int64 per target, of targets (M,) int.
-
-    A counting sort: the transposed lists of a CSR structure.
-    """
-    offsets = np.zeros(count + 1, np.int64)
-    for e in range(len(entries)):
-        offsets[entries[e] + 1] += 1
-    for t in range(count):
-        offsets[t + 1] += offsets[t]
-    fill = offsets[:-1].copy()
-    order = np.empty(len(entries), np.int64)
-    for e in range(len(entries)):
-        order[fill[entries[e]]] = e
-        fill[entries[e]] += 1
-    return order, offsets

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.cells import CellGrid
-from synthesis.edgepcf_fast import point_terms, row_guides, window_sums
+from synthesis.edgepcf_fast import point_terms, row_guides, window_sums, window_weights
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
@@ -94,8 +94,8 @@ class Windows:
         scale: the :class:`WindowScale`.
         offsets: (W + 1,) int64; members of window w are ``offsets[w]:offsets[w + 1]`` ...
         members: (M,) int32 ... these points ...
-        weights: (M,) float64 ... with these weights (taper x guide).
-        deviation: (W, m) standard deviation of each window's cumulative count (Poisson model).
+        weights: (M,) float32 ... with these weights (taper x guide).
+        deviation: (W, m) float32 standard deviation of each window's cumulative count (Poisson model).
     """
 
     scale: WindowScale
@@ -193,15 +193,15 @@ def _windows(scale: WindowScale, fields: MapFields, grid: CellGrid, latent: np.n
              centres: np.ndarray, workspace: Workspace, name: str) -> Windows:
     reach = scale.radius * sample_grid(fields.spacing, centres, fields.side_px)[:, 0].astype(np.float64)
     offsets, members, distance = grid.query(centres, reach, workspace=workspace, name=name)
-    weights = window_taper(distance / np.repeat(reach, np.diff(offsets)))
-    if fields.guide:
-        weights *= row_guides(latent, sample_grid(fields.latent, centres, fields.side_px), offsets, members, GUIDE_BANDWIDTH)
+    centre_latent = sample_grid(fields.latent, centres, fields.side_px) if fields.guide else None
+    weights = window_weights(distance, offsets, reach, latent, members, centre_latent, GUIDE_BANDWIDTH,
+                             workspace.empty(f"{name}.weights", len(members), np.float32))
     windows = Windows(scale, offsets, members, weights, np.empty(0))
     # dead-zone windows need the true spread (it sets the zone); quadratic ones only a weight per radius, kept flat
     # so that the large radii, whose counts vary most, still count (they carry a blue pattern's second shell)
     growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
     factor = CUMULATIVE_VARIANCE[0] + growth * (fields.radii + (fields.radii[1] - fields.radii[0]))
-    windows.deviation = np.sqrt(factor * window_squares(variance, windows) + VARIANCE_FLOOR)
+    windows.deviation = np.sqrt(factor * window_squares(variance, windows) + VARIANCE_FLOOR).astype(np.float32)
     return windows
 
 

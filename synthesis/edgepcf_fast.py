@@ -26,7 +26,6 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from synthesis.cells import transpose
 from synthesis.fields_fast import corners
 from synthesis.workspace import Workspace, scratch
 
@@ -70,6 +69,7 @@ def _cumulative_excess(xy, offsets, neighbours, guide, spacing, inv_width, expec
 
 @numba.njit(**_JIT)
 def _window_slopes(cumulative, offsets, members, weights, deviation, dead, scale, slope, loss):  # pragma: no cover
+    # one window family: dead zone and scale are the family's
     windows, m = slope.shape
     for w in numba.prange(windows):
         row = slope[w]
@@ -83,13 +83,13 @@ def _window_slopes(cumulative, offsets, members, weights, deviation, dead, scale
         penalty = 0.0
         for j in range(m):
             x = row[j] / deviation[w, j]
-            excess = abs(x) - dead[w]
+            excess = abs(x) - dead
             if excess > 0.0:
                 penalty += excess * excess
-                row[j] = math.copysign(2.0 * excess, x) * scale[w] / deviation[w, j]
+                row[j] = math.copysign(2.0 * excess, x) * scale / deviation[w, j]
             else:
                 row[j] = 0.0
-        loss[w] = penalty * scale[w]
+        loss[w] = penalty * scale
 
 
 @numba.njit(**_JIT)
@@ -204,17 +204,85 @@ def point_terms(fields: MapFields, xy: np.ndarray, denominators: Denominators, s
     :func:`synthesis.fields.sample_grid`):
 
     expected tent counts ``g D`` (n, m) float32, the cumulative counts' variance ``dispersion (cumsum(g D) + 1)``
-    (n, m) float32 (``workspace`` buffers ``expected``, ``variance``), and the target's regularity (n,) (1 - mean of
+    (n, m) float32 (``workspace`` buffers ``expected`` and ``objective.cumulative``: the variance is overwritten by
+    the next :class:`FastObjective` of the same workspace), and the target's regularity (n,) (1 - mean of
     its first ``short`` radii) and structure (n,) (see :func:`synthesis.edgepcf.structure`).
     """
     workspace = scratch(workspace)
     n, m = len(xy), len(fields.radii)
-    expected, variance = workspace.empty("expected", (n, m), np.float32), workspace.empty("variance", (n, m), np.float32)
+    expected = workspace.empty("expected", (n, m), np.float32)
+    # the variance is needed only while the windows are built, the objective's cumulative counts only after: one buffer
+    variance = workspace.empty("objective.cumulative", (n, m), np.float32)
     regularity, structure = np.empty(n), np.empty(n)
     _point_terms(fields.target, fields.dispersion, xy[:, 0] * fields.side_px - 0.5, xy[:, 1] * fields.side_px - 0.5,
                  denominators.exact, denominators.slot, denominators.values, short, tolerance, structure_range,
                  expected, variance, regularity, structure)
     return expected, variance, regularity, structure
+
+
+@numba.njit(cache=True)
+def _count_members(members, counts):  # pragma: no cover - jitted
+    for q in range(len(members)):
+        counts[members[q] + 1] += 1
+
+
+@numba.njit(cache=True)
+def _scatter_members(offsets, members, weights, first_window, fill, point_window, point_weight):  # pragma: no cover
+    for w in range(len(offsets) - 1):
+        for q in range(offsets[w], offsets[w + 1]):
+            e = fill[members[q]]
+            point_window[e] = first_window + w
+            point_weight[e] = weights[q]
+            fill[members[q]] += 1
+
+
+def point_lists(families: list, n: int, workspace: Workspace | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The windows each point belongs to, over all families (window indices numbered family after family).
+
+    Returns offsets (n + 1,) int64, window (E,) int32 and weight (E,) float32 (a counting sort, no concatenation).
+    """
+    workspace = scratch(workspace)
+    offsets = np.zeros(n + 1, np.int64)
+    for windows in families:
+        _count_members(windows.members, offsets)
+    np.cumsum(offsets, out=offsets)
+    window = workspace.empty("points.window", offsets[-1], np.int32)
+    weight = workspace.empty("points.weight", offsets[-1], np.float32)
+    fill, first = offsets[:-1].copy(), 0
+    for windows in families:
+        _scatter_members(windows.offsets, windows.members, windows.weights, first, fill, window, weight)
+        first += len(windows.offsets) - 1
+    return offsets, window, weight
+
+
+@numba.njit(**_JIT)
+def _window_weights(distance, offsets, reach, latent, members, centre_latent, bandwidth, guide, out):  # pragma: no cover
+    for w in numba.prange(len(offsets) - 1):
+        for q in range(offsets[w], offsets[w + 1]):
+            u = distance[q] / reach[w]
+            taper = max(1.0 - u * u, 0.0)
+            weight = taper * taper
+            if guide:
+                da, db = latent[members[q], 0] - centre_latent[w, 0], latent[members[q], 1] - centre_latent[w, 1]
+                d2 = da * da + db * db
+                if d2 > 1e-20:
+                    weight *= math.exp(-d2 / (2.0 * bandwidth))
+            out[q] = weight
+
+
+def window_weights(distance: np.ndarray, offsets: np.ndarray, reach: np.ndarray, latent: np.ndarray, members: np.ndarray,
+                   centre_latent: np.ndarray | None, bandwidth: float, out: np.ndarray) -> np.ndarray:
+    """Window weights into out (E,) float32: taper ``(1 - (d / reach)^2)^2`` times guidance H (when ``centre_latent`` is given).
+
+    distance (E,) of each member from its window's centre, CSR offsets (W + 1,), reach (W,), latent (n, 2) at the
+    points, members (E,), centre_latent (W, 2) at the windows' centres. Same values as
+    :func:`synthesis.edgepcf.window_taper` x :func:`synthesis.fields.guide_similarity`.
+    """
+    guide = centre_latent is not None
+    centres = np.ascontiguousarray(centre_latent, np.float64) if guide else np.zeros((len(reach), 2))
+    _window_weights(distance, offsets, reach, np.ascontiguousarray(latent, np.float64), members, centres, float(bandwidth),
+                    guide, out)
+    return out
 
 
 class FastObjective:
@@ -229,25 +297,16 @@ class FastObjective:
         self.hood = hood
         n, m = hood.expected.shape
         self.inv_width = 1.0 / float(hood.radii[1] - hood.radii[0])
-        families = hood.windows
-        counts = [len(windows.offsets) - 1 for windows in families]
-        starts = np.cumsum([0] + [len(windows.members) for windows in families[:-1]])
-        self.offsets = np.concatenate([[0]] + [windows.offsets[1:] + start for windows, start in zip(families, starts)])
-        self.members = np.concatenate([windows.members for windows in families])
-        self.weights = np.concatenate([windows.weights for windows in families]).astype(np.float32)
-        self.deviation = np.concatenate([windows.deviation for windows in families])
-        self.dead = np.concatenate([np.full(count, windows.scale.dead_zone) for windows, count in zip(families, counts)])
-        self.scale = np.concatenate([np.full(count, windows.scale.weight / (count * m)) for windows, count in zip(families, counts)])
-        order, self.point_offsets = transpose(self.members, n)
-        self.point_window = np.repeat(np.arange(len(self.offsets) - 1, dtype=np.int32), np.diff(self.offsets))[order]
-        self.point_weight = self.weights[order]
+        counts = [len(windows.offsets) - 1 for windows in hood.windows]
+        self.bounds = np.cumsum([0] + counts)  # the windows of family f are bounds[f]:bounds[f + 1]
+        self.point_offsets, self.point_window, self.point_weight = point_lists(hood.windows, n, workspace)
         self.slot = np.full(n, -1, np.int32)
         self.slot[hood.sloped] = np.arange(len(hood.sloped), dtype=np.int32)
         self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each
         self.slope_y = np.ascontiguousarray(hood.expected_slope[..., 1])
         self.cumulative = workspace.empty("objective.cumulative", (n, m), np.float32)
-        self.slopes = workspace.empty("objective.slopes", (len(self.offsets) - 1, m), np.float32)
-        self.losses = workspace.empty("objective.losses", len(self.offsets) - 1)
+        self.slopes = workspace.empty("objective.slopes", (self.bounds[-1], m), np.float32)
+        self.losses = workspace.empty("objective.losses", self.bounds[-1])
         threads = numba.get_num_threads() if threads is None else max(1, min(threads, numba.get_num_threads()))
         self.parts = workspace.empty("objective.parts", (threads, n, 2))
 
@@ -256,8 +315,11 @@ class FastObjective:
         hood = self.hood
         _cumulative_excess(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected,
                            hood.anchor, self.slot, self.slope_x, self.slope_y, self.cumulative)
-        _window_slopes(self.cumulative, self.offsets, self.members, self.weights, self.deviation, self.dead, self.scale,
-                       self.slopes, self.losses)
+        m = self.cumulative.shape[1]
+        for windows, lo, hi in zip(hood.windows, self.bounds[:-1], self.bounds[1:]):
+            _window_slopes(self.cumulative, windows.offsets, windows.members, windows.weights, windows.deviation,
+                           windows.scale.dead_zone, windows.scale.weight / ((hi - lo) * m), self.slopes[lo:hi],
+                           self.losses[lo:hi])
         loss = float(self.losses.sum())
         if len(hood.sloped):
             loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))

@@ -196,6 +196,7 @@ def synthesize(
         on_iteration(0, xy)
     for step in range(plan.iterations):
         if objective is None or step % plan.refresh == 0:
+            hood = objective = None  # the old lists go before the new ones are built (peak memory)
             hood = find_neighbourhoods(fields, xy, windows.draw(rng), denominators, workspace)
             objective = FastObjective(hood, threads, workspace)
             freedom = 1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)

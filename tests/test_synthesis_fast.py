@@ -9,9 +9,10 @@ from scipy.spatial import cKDTree
 
 from patternshop import cli
 from synthesis import points as points_module
-from synthesis.cells import CellGrid, transpose
-from synthesis.edgepcf import POISSON_TOLERANCE, REGULAR_RANGE, STRUCTURE_RANGE, find_neighbourhoods, regularity, structure
-from synthesis.edgepcf_fast import FastObjective, point_terms, row_guides
+from synthesis.cells import CellGrid
+from synthesis.edgepcf import (POISSON_TOLERANCE, REGULAR_RANGE, STRUCTURE_RANGE, find_neighbourhoods, regularity, structure,
+                               window_taper)
+from synthesis.edgepcf_fast import FastObjective, point_lists, point_terms, row_guides, window_weights
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, guide_similarity, sample_grid, sample_grid_reference
 from synthesis.labmap import LabMap
 from synthesis.mapio import write_tiff
@@ -57,11 +58,33 @@ def test_cell_grid_counts_each_point_once_on_a_small_torus():
         assert len(found) == len(set(found)) and set(found) == set(ref_index[ref_offsets[c]:ref_offsets[c + 1]].tolist())
 
 
-def test_transpose_is_a_stable_counting_sort():
-    entries = np.array([3, 1, 3, 0, 1, 3], np.int32)
-    order, offsets = transpose(entries, 5)
-    assert order.tolist() == np.argsort(entries, kind="stable").tolist()
-    assert offsets.tolist() == [0, 1, 3, 3, 6, 6]
+def test_point_lists_gather_every_membership_of_both_families():
+    fields = MapFields.build(split_map(), 1200, load_palette())
+    xy = np.random.default_rng(6).random((1200, 2)) * fields.domain
+    hood = find_neighbourhoods(fields, xy)
+    offsets, window, weight = point_lists(hood.windows, len(xy))
+    expected = {}
+    first = 0
+    for windows in hood.windows:
+        for w in range(len(windows.offsets) - 1):
+            for q in range(windows.offsets[w], windows.offsets[w + 1]):
+                expected.setdefault(int(windows.members[q]), []).append((first + w, float(windows.weights[q])))
+        first += len(windows.offsets) - 1
+    for c in range(len(xy)):
+        assert list(zip(window[offsets[c]:offsets[c + 1]].tolist(), weight[offsets[c]:offsets[c + 1]].tolist())) == expected.get(c, [])
+
+
+def test_window_weights_match_taper_times_guide():
+    rng = np.random.default_rng(7)
+    latent, centres = rng.random((300, 2)) * 0.1, rng.random((10, 2)) * 0.1
+    offsets = np.arange(0, 301, 30)
+    members = rng.permutation(300).astype(np.int32)
+    reach = rng.uniform(0.5, 1.0, 10)
+    distance = rng.random(300) * 0.9
+    rows = np.repeat(np.arange(10), 30)
+    got = window_weights(distance, offsets, reach, latent, members, centres, GUIDE_BANDWIDTH, np.empty(300, np.float32))
+    plain = window_taper(distance / reach[rows]) * guide_similarity(latent[members], centres[rows])
+    np.testing.assert_allclose(got, plain, rtol=1e-6, atol=1e-7)
 
 
 def test_field_sampling_and_guides_match_the_references():
