@@ -16,7 +16,10 @@ converge alike; they decay from ``step`` to ``final_step`` along a cosine, are
 ``free_step`` times longer where the target is not regular (clusters must
 form from an independent start) and shrink to 0 where the target is white
 noise (the independent start already is a true sample). Pair lists, windows
-and the fields at the points are refreshed every ``refresh`` iterations.
+and the fields at the points are refreshed every ``refresh`` iterations at
+the initial step, less often as the step decays (whenever the points could
+have moved as far as in ``refresh`` initial steps: 15 refreshes in 250
+iterations instead of 25).
 Points leaving the domain are mirrored back in, momentum reversed (a border is
 a mirror, not a wall that collects points). Every point stays within a leash
 of ``leash`` local spacings (``x free_step`` where the target is not regular)
@@ -57,7 +60,7 @@ class Schedule:
 
     name: str
     iterations: int
-    refresh: int
+    refresh: float  # iterations between refreshes at the initial step; the interval grows as the step decays
     step: float  # initial step, in units of the local spacing, where the target is regular (a hard core)
     final_step: float
     free_step: float  # step factor where the target is not regular (Poisson, clustered): points travel further
@@ -163,6 +166,7 @@ def synthesize(
 
     from synthesis.edgepcf import WindowSampler, find_neighbourhoods
     from synthesis.edgepcf_fast import FastObjective
+    from synthesis.step_fast import momentum_step
     from synthesis.stratified import spatial_order
 
     start = time.perf_counter()
@@ -190,30 +194,28 @@ def synthesize(
     beta1, beta2 = 0.9, 0.999
     setup = time.perf_counter() - start
     losses: list[float] = []
-    objective = step_length = leash = None
+    step_length = leash = None
     bar = tqdm(total=plan.iterations, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
     if on_iteration is not None:
         on_iteration(0, xy)
+    travelled = math.inf  # since the last refresh, in iterations at the initial step
     for step in range(plan.iterations):
-        if objective is None or step % plan.refresh == 0:
+        fraction = step / max(plan.iterations - 1, 1)
+        rate = plan.final_step + 0.5 * (plan.step - plan.final_step) * (1 + math.cos(math.pi * fraction))
+        if travelled >= plan.refresh:
+            travelled = 0.0
             hood = objective = None  # the old lists go before the new ones are built (peak memory)
             hood = find_neighbourhoods(fields, xy, windows.draw(rng), denominators, workspace)
             objective = FastObjective(hood, threads, workspace)
             freedom = 1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)
-            step_length = (hood.spacing * hood.structure * freedom)[:, None]
-            leash = (plan.leash * hood.spacing * freedom)[:, None]
+            step_length = hood.spacing * hood.structure * freedom
+            leash = plan.leash * hood.spacing * freedom
         loss, gradient = objective(xy)
         losses.append(loss)
-        first *= beta1
-        first += (1 - beta1) * gradient
-        second = beta2 * second + (1 - beta2) * float(np.mean(gradient * gradient))
-        fraction = step / max(plan.iterations - 1, 1)
-        rate = plan.final_step + 0.5 * (plan.step - plan.final_step) * (1 + math.cos(math.pi * fraction))
-        update = (first / (1 - beta1 ** (step + 1))) / (np.sqrt(second / (1 - beta2 ** (step + 1))) + 1e-30)
-        xy -= rate * step_length * update
-        first[reflect(xy, fields.domain)] *= -1.0  # a mirror reverses the momentum too
-        away = xy - start_xy
-        xy -= away * (1.0 - np.minimum(1.0, leash / np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)))
+        second = beta2 * second + (1 - beta2) * float(np.vdot(gradient, gradient)) / gradient.size
+        travelled += rate / plan.step
+        momentum_step(xy, first, gradient, start_xy, step_length, leash, rate, beta1, 1 - beta1 ** (step + 1),
+                      math.sqrt(second / (1 - beta2 ** (step + 1))) + 1e-30, *fields.domain)
         if on_iteration is not None:
             on_iteration(step + 1, xy)
         bar.set_postfix(loss=f"{loss:.4g}", refresh=False)
@@ -223,6 +225,24 @@ def synthesize(
     points[order] = xy  # the start's order
     return SynthesisResult(PointSet(points, fields.domain), plan.name, plan.iterations,
                            time.perf_counter() - start, setup, losses, final_loss(fields, xy, denominators, workspace, windows))
+
+
+def momentum_step_reference(xy: np.ndarray, first: np.ndarray, gradient: np.ndarray, start_xy: np.ndarray,
+                            step_length: np.ndarray, leash: np.ndarray, rate: float, beta1: float,
+                            first_correction: float, denominator: float, width: float, height: float) -> None:
+    """One step in place on positions xy (n, 2) and first moments (n, 2), plain numpy (the reference of
+    :func:`synthesis.step_fast.momentum_step`).
+
+    ``first <- beta1 first + (1 - beta1) gradient``; move by ``rate x step_length x (first / first_correction) /
+    denominator`` (step_length (n,) in map units; denominator: the shared second moment's root, bias-corrected);
+    mirror at the border (reversing the momentum there, :func:`reflect`); pull back within ``leash`` (n,) of start_xy.
+    """
+    first *= beta1
+    first += (1 - beta1) * gradient
+    xy -= rate * step_length[:, None] * ((first / first_correction) / denominator)
+    first[reflect(xy, (width, height))] *= -1.0  # a mirror reverses the momentum too
+    away = xy - start_xy
+    xy -= away * (1.0 - np.minimum(1.0, leash[:, None] / np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)))
 
 
 def final_loss(fields: MapFields, xy: np.ndarray, denominators: DenominatorTracker | None = None,

@@ -211,3 +211,24 @@ def test_border_denominators_agree_with_the_quadrature():
     # the closed form is the quadrature's limit: they differ by its node noise (8 nodes on the smallest rings)
     assert np.abs(values - quadrature).mean() < 0.01 * fields.exact_denominator.mean()
     assert (np.abs(values - quadrature) <= 0.15 * fields.exact_denominator).all()  # one node of a 9-node ring is 11 %
+
+
+def test_fused_momentum_step_matches_the_reference():
+    from synthesis.step_fast import momentum_step
+    from synthesis.synthesize import momentum_step_reference
+
+    rng = np.random.default_rng(8)
+    n, domain = 500, (1.0, 0.6)
+    xy = rng.random((n, 2)) * domain
+    xy[:20] = rng.random((20, 2)) * 0.002  # at the border: some steps cross it and are mirrored
+    start = xy + rng.normal(0.0, 0.01, xy.shape)
+    first, gradient = rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
+    step_length, leash = rng.uniform(0.001, 0.05, n), rng.uniform(0.005, 0.03, n)
+    args = (start, step_length, leash, 0.3, 0.9, 0.4, 0.8, *domain)
+    ours, ours_first = xy.copy(), first.copy()
+    momentum_step(ours, ours_first, gradient, *args)
+    plain, plain_first = xy.copy(), first.copy()
+    momentum_step_reference(plain, plain_first, gradient, *args)
+    np.testing.assert_allclose(ours, plain, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(ours_first, plain_first)
+    assert (ours_first[:20] != first[:20] * 0.9 + gradient[:20] * 0.1).any()  # some momenta were reversed
