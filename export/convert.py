@@ -7,9 +7,9 @@ caller to report. Outputs are written atomically, named after the input
 
 * :func:`convert_points`: each worker process loads the network once
   (:class:`~export.runtime.OnnxModel`), then takes chunks of point files: reads
-  and rasterises each (:func:`export.runtime.pattern_raster`), runs it through
-  the network, crops the output to its domain
-  (:func:`~export.runtime.output_to_map`) and writes a CIELAB TIFF. The network
+  each and infers its map as ``infer`` does (:func:`export.runtime.infer_map`:
+  scale chosen from the pattern unless given, a, b filled where the evidence is
+  thin) and writes a CIELAB TIFF. The network
   is nearly all the work (about 80 ms of one core per 20k-point file at the
   default scale, a 640 x 640 px raster), so N workers on N idle cores go about
   N times as fast as one.
@@ -199,7 +199,7 @@ def _load_model(path: Path, threads: int) -> None:
 
 @dataclass(frozen=True)
 class _InferenceSettings:
-    points_per_ink: float
+    points_per_ink: float | None  # None: chosen per file (export.evidence.choose_points_per_ink)
     bits: int
     memory_limit: float  # bytes one process may use for one file
 
@@ -209,7 +209,8 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
 
     One raster per network run: on the CPU a batch of 8 took as long per raster or longer (68-89 ms vs 68-74 ms).
     """
-    from export.runtime import map_width, output_to_map, pattern_raster, raster_scale, saturation_warning
+    from export.evidence import ScaleChoice, choose_points_per_ink
+    from export.runtime import infer_map, map_width, raster_scale
     from synthesis.mapio import write_tiff
     from synthesis.resources import inference_bytes
 
@@ -219,16 +220,20 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
         notes: tuple[str, ...] = ()
         try:
             points = read_points(job.source)
+            scale = (ScaleChoice(settings.points_per_ink, False) if settings.points_per_ink is not None
+                     else choose_points_per_ink(points, POINTS_PER_INK))
             (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink,
-                                                            settings.points_per_ink)
+                                                            scale.points_per_ink)
             width = map_width(points.domain, model, None)
             _check_share(job, inference_bytes(side, width * max(1, round(width * h / w))), f"a {side}x{side} px raster",
                          settings.memory_limit)
-            message = saturation_warning(len(points), settings.points_per_ink)
-            notes = (f"{job.source}: {message}",) if message else ()
-            raster, scale = pattern_raster(points, model.raster_size, model.points_per_ink, settings.points_per_ink)
-            output = model.predict(raster[None, None])[0]
-            write_tiff(output_to_map(output, points.domain, scale, width), job.output, settings.bits)
+            with warnings.catch_warnings(record=True) as caught:  # the saturation warning of a given scale
+                warnings.simplefilter("always", PatternshopWarning)
+                inference = infer_map(points, model, scale=scale)
+            notes = tuple(f"{job.source}: {warning.message}" for warning in caught)
+            if scale.points_per_ink != POINTS_PER_INK:
+                notes += (f"{job.source}: read at {scale.describe()}",)
+            write_tiff(inference.lab_map, job.output, settings.bits)
             results.append((job.index, FileResult(job.source, job.output, WRITTEN, None, notes)))
         except (PatternshopError, OSError) as exc:
             results.append((job.index, FileResult(job.source, job.output, FAILED, _one_line(exc), notes)))
@@ -237,7 +242,7 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
 
 def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxModel, batch_size: int = 8,
                    workers: int = 2, bits: int = 16, overwrite: bool = False, progress: bool = False,
-                   points_per_ink: float = POINTS_PER_INK, memory_limit: float = math.inf) -> list[FileResult]:
+                   points_per_ink: float | None = None, memory_limit: float = math.inf) -> list[FileResult]:
     """Infer a map for each point file into ``out_dir/NAME.tif`` (``bits``-bit CIELAB); one result per source, in order.
 
     Args:
@@ -245,7 +250,8 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
         batch_size: point files per worker task.
         workers: processes, each doing the whole work for its files (1: this process).
         overwrite: replace existing outputs (default: skip their inputs).
-        points_per_ink: points of a fully dark map at the patterns' scale (see :func:`export.runtime.points_to_map`).
+        points_per_ink: points of a fully dark map at the patterns' scale; None chooses it per file as ``infer``
+            does (:func:`export.runtime.infer_map`, which also fills a, b where the evidence is thin).
         memory_limit: bytes all workers together may use; a file whose estimate exceeds its worker's share fails.
     """
     if batch_size < 1 or bits not in (8, 16):

@@ -92,3 +92,17 @@ def test_infer_chooses_reports_and_keeps_an_override(tiny_model: Path, tmp_path:
     assert json.loads(report.read_text())["thin_evidence_share"] > 0.5
     status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "n.tif"), "--model", str(tiny_model), "--no-fill"], capsys)
     assert status == 0 and "left as the network gave them" in err
+
+
+def test_convert_reads_each_file_at_its_own_scale(tiny_model: Path, tmp_path: Path) -> None:
+    from export.convert import WRITTEN, convert_points
+    from export.runtime import OnnxModel
+
+    write_points(PointSet(generate("white", 75_000, seed=5)), tmp_path / "dense.txt")
+    write_points(PointSet(generate("white", 5_000, seed=6)), tmp_path / "light.txt")
+    sources = [tmp_path / "dense.txt", tmp_path / "light.txt"]
+    dense, light = convert_points(sources, tmp_path / "auto", OnnxModel(tiny_model), workers=1)
+    assert dense.status == light.status == WRITTEN
+    assert len(dense.warnings) == 1 and "points per ink (automatic" in dense.warnings[0] and not light.warnings
+    dense, _ = convert_points(sources, tmp_path / "given", OnnxModel(tiny_model), workers=1, points_per_ink=50_000)
+    assert len(dense.warnings) == 1 and "saturated" in dense.warnings[0]

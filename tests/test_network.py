@@ -298,3 +298,16 @@ def test_resize_convolution_exports_with_dynamic_sizes(tmp_path: Path) -> None:
     assert props["generator"]["upsample"] == "nearest"
     rasters = np.random.default_rng(0).random((1, 1, 192, 192), dtype=np.float32)
     assert max_abs_difference(net, tmp_path / "resize.onnx", rasters) <= 1e-4
+
+
+def test_a_checkpoint_from_before_the_upsample_option_loads_as_transposed(tmp_path: Path) -> None:
+    """The shipped model's checkpoint records no ``upsample``: it loads (strictly) into the transposed architecture."""
+    from export.onnx import load_generator
+
+    old = Pix2PixModule(base_channels=4, max_channels=8, upsample="transposed")
+    hparams = {key: value for key, value in dict(old.hparams).items() if key != "upsample"}
+    checkpoint = tmp_path / "old.ckpt"
+    torch.save({"state_dict": old.state_dict(), "hyper_parameters": hparams, "pytorch-lightning_version": L.__version__}, checkpoint)
+    generator = load_generator(checkpoint)
+    assert generator.upsample == "transposed"
+    assert all(torch.equal(a, b) for a, b in zip(generator.state_dict().values(), old.generator.state_dict().values(), strict=True))

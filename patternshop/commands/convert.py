@@ -48,9 +48,10 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     convert.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of the output TIFFs (default 16)")
     convert.add_argument("--overwrite", action="store_true", help="replace existing outputs instead of skipping their inputs")
     convert.add_argument("--no-progress", action="store_true", help="no progress bar")
-    convert.add_argument("--points-per-ink", type=positive_float, default=POINTS_PER_INK, metavar="K",
-                         help=f"points of a fully dark map: the scale point files are read at, and maps synthesised at "
-                         f"with --resynthesize (default {POINTS_PER_INK}, as synthesize)")
+    convert.add_argument("--points-per-ink", type=positive_float, metavar="K",
+                         help=f"points of a fully dark map: the scale point files are read at (default: chosen per file "
+                         f"as infer does, {POINTS_PER_INK} unless the pattern is denser), and maps synthesised at with "
+                         f"--resynthesize (default {POINTS_PER_INK}, as synthesize)")
     synthesis = convert.add_argument_group("maps to points (--resynthesize), as in 'patternshop synthesize'")
     synthesis.add_argument("--resynthesize", action="store_true", help="synthesise points for maps instead of inferring maps")
     synthesis.add_argument("--points", type=positive_int, metavar="N", help="points per map (default: from the ink)")
