@@ -44,7 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.cells import CellGrid
-from synthesis.edgepcf_fast import point_terms, row_guides, window_sums, window_weights
+from synthesis.edgepcf_fast import (point_lists, point_terms, row_guides, sloped_window_sums, window_bounds, window_sums,
+                                    window_weights)
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
@@ -136,7 +137,11 @@ class Neighbourhoods:
         sloped: (K,) int64 ... (these) the expected counts change with position ...
         expected_slope: (K, m, 2) ... by ``g grad D`` (linearised between refreshes).
         variance_force: (K, 2) gradient of the variance compensation at the sloped points (see :func:`_variance_force`).
-        windows: one :class:`Windows` per :data:`WINDOW_SCALES` entry.
+        windows: one :class:`Windows` per :data:`WINDOW_SCALES` entry ...
+        member_offsets: (n + 1,) int64 ... and the windows each point belongs to (transposed lists, all families,
+            windows numbered family after family): ``member_offsets[c]:member_offsets[c + 1]`` ...
+        member_window: (E,) int32 ... these windows ...
+        member_weight: (E,) float32 ... with these weights.
         radii: (m,) radii in units of r_max.
         regularity: (n,) in [0, 1], how far the target PCF at each point stays below 1 at short range.
         structure: (n,) in [0, 1], how far the target PCF at each point is from Poisson's (0: white noise).
@@ -152,6 +157,9 @@ class Neighbourhoods:
     expected_slope: np.ndarray
     variance_force: np.ndarray
     windows: list[Windows]
+    member_offsets: np.ndarray
+    member_window: np.ndarray
+    member_weight: np.ndarray
     radii: np.ndarray
     regularity: np.ndarray
     structure: np.ndarray
@@ -237,16 +245,18 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
                                                           POISSON_TOLERANCE, STRUCTURE_RANGE, workspace)
     windows = [_windows(scale, fields, grid, latent, variance, where, workspace, f"windows{i}")
                for i, (scale, where) in enumerate(zip(WINDOW_SCALES, window_centres))]
+    members = point_lists(windows, n, workspace)
     sloped = denominator.sloped
     expected_slope = sample_grid(fields.target, xy[sloped], fields.side_px)[..., None] * denominator.slopes
     dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
-    variance_force = _variance_force(windows, n, sloped, dispersion[..., None] * np.cumsum(expected_slope, axis=1), fields.radii)
+    variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * np.cumsum(expected_slope, axis=1),
+                                     fields.radii)
     return Neighbourhoods(offsets, neighbours, guide, spacing, expected, xy.copy(), sloped, expected_slope,
-                          variance_force, windows, np.asarray(fields.radii, np.float64), regular, structured)
+                          variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular, structured)
 
 
-def _variance_force(windows: list[Windows], n: int, sloped: np.ndarray, variance_slope: np.ndarray,
-                    radii: np.ndarray) -> np.ndarray:
+def _variance_force(windows: list[Windows], members: tuple[np.ndarray, np.ndarray, np.ndarray], sloped: np.ndarray,
+                    variance_slope: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """(K, 2) gradient of the quadratic windows' variance compensation at the sloped points.
 
     A quadratic window loss has expectation ``bias^2 + Var(r)`` even at a true
@@ -258,22 +268,18 @@ def _variance_force(windows: list[Windows], n: int, sloped: np.ndarray, variance
     (expected cumulative count + 1)) of each quadratic window over its
     deviation^2; it depends on positions only through the sloped points'
     expected counts, ``variance_slope`` (K, m, 2) = dispersion x grad K.
+    ``members``: the point lists of :func:`synthesis.edgepcf_fast.point_lists`.
     """
     force = np.zeros((len(sloped), 2))
     if not len(sloped):
         return force
     width = radii[1] - radii[0]
     model = CUMULATIVE_VARIANCE[0] + CUMULATIVE_VARIANCE[1] * (radii + width)
-    slot = np.full(n, -1, np.int64)
-    slot[sloped] = np.arange(len(sloped))
-    for family in windows:
+    for family, first in zip(windows, window_bounds(windows)):
         if not family.scale.compensation:
             continue
         scale = family.scale.compensation * family.scale.weight / family.deviation.size
-        entries = np.flatnonzero(slot[family.members] >= 0)  # only the sloped points' memberships matter
-        per_point = np.zeros((len(sloped), len(radii)))
-        np.add.at(per_point, slot[family.members[entries]],
-                  (family.weights[entries] ** 2)[:, None] * (model / family.deviation**2)[family.owners[entries]])
+        per_point = sloped_window_sums(sloped, *members, first, model / family.deviation.astype(np.float64) ** 2)
         force -= scale * np.einsum("kj,kjd->kd", per_point, variance_slope)
     return force
 

@@ -236,6 +236,11 @@ def _scatter_members(offsets, members, weights, first_window, fill, point_window
             fill[members[q]] += 1
 
 
+def window_bounds(families: list) -> np.ndarray:
+    """(F + 1,) the windows of family f are numbered ``bounds[f]:bounds[f + 1]`` in the point lists."""
+    return np.cumsum([0] + [len(windows.offsets) - 1 for windows in families])
+
+
 def point_lists(families: list, n: int, workspace: Workspace | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The windows each point belongs to, over all families (window indices numbered family after family).
 
@@ -285,6 +290,32 @@ def window_weights(distance: np.ndarray, offsets: np.ndarray, reach: np.ndarray,
     return out
 
 
+@numba.njit(**_JIT)
+def _sloped_window_sums(sloped, point_offsets, point_window, point_weight, first, last, values, out):  # pragma: no cover
+    for k in numba.prange(len(sloped)):
+        c = sloped[k]
+        for j in range(out.shape[1]):
+            out[k, j] = 0.0
+        for e in range(point_offsets[c], point_offsets[c + 1]):
+            w = point_window[e]
+            if first <= w < last:
+                a = point_weight[e]
+                for j in range(out.shape[1]):
+                    out[k, j] += a * a * values[w - first, j]
+
+
+def sloped_window_sums(sloped: np.ndarray, point_offsets: np.ndarray, point_window: np.ndarray, point_weight: np.ndarray,
+                       first: int, values: np.ndarray) -> np.ndarray:
+    """(K, m) ``sum a_wc^2 values[w - first]`` over the windows ``first <= w < first + W`` of each point c in ``sloped`` (K,).
+
+    values (W, m): one family's per-window rows; the point lists come from :func:`point_lists`.
+    """
+    out = np.empty((len(sloped), values.shape[1]))
+    _sloped_window_sums(sloped, point_offsets, point_window, point_weight, first, first + len(values),
+                        np.ascontiguousarray(values, np.float64), out)
+    return out
+
+
 class FastObjective:
     """Objective and gradient for one neighbourhood, with buffers reused across iterations.
 
@@ -297,9 +328,7 @@ class FastObjective:
         self.hood = hood
         n, m = hood.expected.shape
         self.inv_width = 1.0 / float(hood.radii[1] - hood.radii[0])
-        counts = [len(windows.offsets) - 1 for windows in hood.windows]
-        self.bounds = np.cumsum([0] + counts)  # the windows of family f are bounds[f]:bounds[f + 1]
-        self.point_offsets, self.point_window, self.point_weight = point_lists(hood.windows, n, workspace)
+        self.bounds = window_bounds(hood.windows)
         self.slot = np.full(n, -1, np.int32)
         self.slot[hood.sloped] = np.arange(len(hood.sloped), dtype=np.int32)
         self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each
@@ -325,8 +354,8 @@ class FastObjective:
             loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))
         if not gradient:
             return loss, None
-        _gradient(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, self.point_offsets,
-                  self.point_window, self.point_weight, self.slopes, self.slot, self.slope_x, self.slope_y,
+        _gradient(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.member_offsets,
+                  hood.member_window, hood.member_weight, self.slopes, self.slot, self.slope_x, self.slope_y,
                   hood.variance_force, self.parts)
         return loss, self.parts[0] if len(self.parts) == 1 else self.parts.sum(axis=0)
 

@@ -232,3 +232,28 @@ def test_fused_momentum_step_matches_the_reference():
     np.testing.assert_allclose(ours, plain, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(ours_first, plain_first)
     assert (ours_first[:20] != first[:20] * 0.9 + gradient[:20] * 0.1).any()  # some momenta were reversed
+
+
+def test_variance_force_matches_a_plain_sum():
+    from synthesis.edgepcf import CUMULATIVE_VARIANCE
+
+    fields = MapFields.build(split_map(), 1200, load_palette())
+    xy = np.random.default_rng(9).random((1200, 2)) * fields.domain
+    hood = find_neighbourhoods(fields, xy)
+    assert len(hood.sloped) > 50
+    dispersion = sample_grid(fields.dispersion, xy[hood.sloped], fields.side_px).astype(np.float64)
+    variance_slope = dispersion[..., None] * np.cumsum(hood.expected_slope, axis=1)
+    model = CUMULATIVE_VARIANCE[0] + CUMULATIVE_VARIANCE[1] * (fields.radii + fields.radii[1])
+    slot = np.full(len(xy), -1)
+    slot[hood.sloped] = np.arange(len(hood.sloped))
+    plain = np.zeros((len(hood.sloped), 2))
+    for family in hood.windows:
+        if not family.scale.compensation:
+            continue
+        per_point = np.zeros((len(hood.sloped), len(fields.radii)))
+        owners = family.owners
+        for q in np.flatnonzero(slot[family.members] >= 0):
+            per_point[slot[family.members[q]]] += float(family.weights[q]) ** 2 * model / family.deviation[owners[q]].astype(np.float64) ** 2
+        scale = family.scale.compensation * family.scale.weight / family.deviation.size
+        plain -= scale * np.einsum("kj,kjd->kd", per_point, variance_slope)
+    np.testing.assert_allclose(hood.variance_force, plain, rtol=1e-6, atol=1e-9 * np.abs(plain).max())  # float32 weights

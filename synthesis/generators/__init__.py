@@ -17,6 +17,14 @@ spectrum ``P_b`` (1 for white noise; see :mod:`synthesis.spectrum`):
 * ``step``: step blue noise; ``P_b`` about 0 below a cutoff and 1 above
   (Heck, Schlömer and Deussen 2013). At most 4096 points.
 * ``jitter``: jittered grid; one point per grid cell, a weak blue noise (Cook 1986).
+* ``lattice``: perfect square lattice (randomly shifted); Bragg peaks only.
+* ``perturbed``: hexagonal lattice, each point jittered by 0.1 mean spacings; the most regular blue noise.
+* ``lloyd``: Lloyd-relaxed points (30 iterations of a centroidal Voronoi tessellation); a strong blue noise.
+* ``matern``: Matérn clusters; tight clumps of about 6 points at random places.
+
+Most modules also take parameters (radius, jitter, cluster size, ...) as keyword
+arguments of their ``generate``; the palette corpus (:mod:`data_gen.families`)
+sweeps them.
 
 Use :func:`generate` with a name and a seed, or :data:`GENERATORS` with a
 ``numpy.random.Generator``.
@@ -30,7 +38,7 @@ import numpy as np
 
 from synthesis.errors import PatternshopError
 
-from . import blue, green, jitter, red, step, white
+from . import blue, green, jitter, lattice, lloyd, matern, red, step, white
 
 Generator = Callable[[int, np.random.Generator], np.ndarray]
 
@@ -41,6 +49,10 @@ GENERATORS: dict[str, Generator] = {
     "red": red.generate,
     "step": step.generate,
     "jitter": jitter.generate,
+    "lattice": lattice.generate,
+    "perturbed": lattice.perturbed,
+    "lloyd": lloyd.generate,
+    "matern": matern.generate,
 }
 
 

@@ -36,10 +36,10 @@ SHRINK = 0.98  # radius factor once no free area is left
 STALL_BATCHES = 6  # batches in a row that accept nothing before the radius shrinks
 
 
-def generate(n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, 2) float64 points in [0, 1)^2, pairwise toroidal distances >= about ``0.76 r_max``."""
+def generate(n: int, rng: np.random.Generator, relative_radius: float = RELATIVE_RADIUS) -> np.ndarray:
+    """(n, 2) float64 points in [0, 1)^2, pairwise toroidal distances >= about ``relative_radius`` r_max (at most 0.76)."""
     n = check_count(n)
-    radius = RELATIVE_RADIUS * r_max(n)
+    radius = relative_radius * r_max(n)
     side = math.ceil(1.0 / (CELL_FRACTION * radius))
     active = np.arange(side * side)  # cells not yet covered by a single disk
     points = np.empty((0, 2))

@@ -21,26 +21,29 @@ from . import blue
 from ._torus import check_count, gaussian_clusters, mean_spacing
 
 POINTS_PER_CLUSTER = 4  # on average
-MIN_CLUSTER, MAX_CLUSTER = 2, 6
+MIN_CLUSTER = 2  # points; the largest cluster holds 2 POINTS_PER_CLUSTER - MIN_CLUSTER (6 by default)
 CLUSTER_STD = 0.25  # mean spacings
 
 
-def generate(n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, 2) float64 points in [0, 1)^2 in clusters of 2-6 (fewer only if n < 2)."""
+def generate(n: int, rng: np.random.Generator, points_per_cluster: int = POINTS_PER_CLUSTER,
+             cluster_std: float = CLUSTER_STD) -> np.ndarray:
+    """(n, 2) float64 points in [0, 1)^2 in clusters of 2 to ``2 points_per_cluster - 2`` (2-6 by default;
+    fewer only if n < 2), offsets of ``cluster_std`` mean spacings, the clusters spread as blue noise."""
     n = check_count(n)
-    clusters = max(1, round(n / POINTS_PER_CLUSTER))
+    clusters = max(1, round(n / points_per_cluster))
     centres = blue.generate(clusters, rng)
-    return gaussian_clusters(centres, _cluster_sizes(n, clusters, rng), CLUSTER_STD * mean_spacing(n), rng)
+    sizes = _cluster_sizes(n, clusters, max(MIN_CLUSTER + 1, 2 * points_per_cluster - MIN_CLUSTER), rng)
+    return gaussian_clusters(centres, sizes, cluster_std * mean_spacing(n), rng)
 
 
-def _cluster_sizes(n: int, clusters: int, rng: np.random.Generator) -> np.ndarray:
-    """(clusters,) random sizes in [MIN_CLUSTER, MAX_CLUSTER] summing to n.
+def _cluster_sizes(n: int, clusters: int, largest: int, rng: np.random.Generator) -> np.ndarray:
+    """(clusters,) random sizes in [MIN_CLUSTER, largest] summing to n.
 
     Every cluster gets ``MIN_CLUSTER`` points (fewer if n is too small); the
-    rest fill randomly chosen free slots, at most ``MAX_CLUSTER - MIN_CLUSTER``
-    per cluster. Needs ``n <= MAX_CLUSTER * clusters``.
+    rest fill randomly chosen free slots, at most ``largest - MIN_CLUSTER``
+    per cluster. Needs ``n <= largest * clusters``.
     """
     base = min(MIN_CLUSTER, n // clusters)
-    spare = MAX_CLUSTER - MIN_CLUSTER
+    spare = largest - MIN_CLUSTER
     slots = rng.choice(spare * clusters, size=n - base * clusters, replace=False)
     return base + np.bincount(slots // spare, minlength=clusters)

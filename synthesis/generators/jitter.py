@@ -18,10 +18,14 @@ import numpy as np
 from ._torus import check_count, wrap
 
 
-def generate(n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, 2) float64 points in [0, 1)^2, at most one per cell of a ``ceil(sqrt(n))``-square grid."""
+def generate(n: int, rng: np.random.Generator, strength: float = 1.0) -> np.ndarray:
+    """(n, 2) float64 points in [0, 1)^2, at most one per cell of a ``ceil(sqrt(n))``-square grid.
+
+    ``strength`` in [0, 1] is the share of its cell a point may lie in (centred):
+    1 is the jittered grid, 0 the lattice of cell centres.
+    """
     n = check_count(n)
     side = math.isqrt(n - 1) + 1 if n else 1
     cells = rng.choice(side * side, size=n, replace=False)
     corners = np.stack([cells % side, cells // side], axis=1)
-    return wrap((corners + rng.random((n, 2))) / side)
+    return wrap((corners + 0.5 + strength * (rng.random((n, 2)) - 0.5)) / side)

@@ -22,9 +22,11 @@ POINTS_PER_CLUSTER = 16  # on average
 CLUSTER_STD = 0.6  # mean spacings
 
 
-def generate(n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, 2) float64 points in [0, 1)^2, clustered around ``round(n/16)`` random parents."""
+def generate(n: int, rng: np.random.Generator, points_per_cluster: float = POINTS_PER_CLUSTER,
+             cluster_std: float = CLUSTER_STD) -> np.ndarray:
+    """(n, 2) float64 points in [0, 1)^2, Gaussian clusters (``cluster_std`` mean spacings) around
+    ``round(n / points_per_cluster)`` random parents."""
     n = check_count(n)
-    parents = max(1, round(n / POINTS_PER_CLUSTER))
+    parents = max(1, round(n / points_per_cluster))
     sizes = rng.multinomial(n, np.full(parents, 1.0 / parents))
-    return gaussian_clusters(rng.random((parents, 2)), sizes, CLUSTER_STD * mean_spacing(n), rng)
+    return gaussian_clusters(rng.random((parents, 2)), sizes, cluster_std * mean_spacing(n), rng)
