@@ -105,7 +105,8 @@ class CellGrid:
         Returns offsets (C + 1,) int64 (centre c's entries are ``offsets[c]:offsets[c + 1]``),
         indices (E,) int32 and distances (E,) float64 (None unless ``distances``).
         ``exclude`` (C,): a point index each centre leaves out (itself), or -1.
-        The arrays come from ``workspace`` buffers ``name.*`` when given.
+        The arrays come from ``workspace`` buffers ``name.*`` when given (the distances from one
+        buffer shared by all queries: overwritten by the next query).
         """
         workspace = scratch(workspace)
         centres = np.ascontiguousarray(centres, np.float64).reshape(-1, 2)
@@ -120,6 +121,6 @@ class CellGrid:
         _scan(*args, np.empty(0, np.int32), np.empty(0), False)
         np.cumsum(offsets, out=offsets)  # offsets[q + 1] held the count of centre q
         index = workspace.empty(f"{name}.index", offsets[-1], np.int32)
-        distance = workspace.empty(f"{name}.distance", offsets[-1]) if distances else np.empty(0)
+        distance = workspace.empty("query.distance", offsets[-1]) if distances else np.empty(0)
         _scan(*args, index, distance, True)
         return offsets, index, distance if distances else None

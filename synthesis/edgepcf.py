@@ -44,9 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.cells import CellGrid
-from synthesis.edgepcf_fast import (point_lists, point_terms, row_guides, sloped_window_sums, window_bounds, window_sums,
-                                    window_weights)
-from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, sample_grid
+from synthesis.edgepcf_fast import point_lists, point_terms, row_guides, sloped_window_sums, window_bounds, window_weights
+from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, Denominators, MapFields, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff
@@ -132,8 +131,9 @@ class Neighbourhoods:
         neighbours: (P,) int32 neighbour of each pair (within the cutoff of its centre).
         guide: (P,) float32 guidance weights H of the pairs.
         spacing: (n,) local r_max at the points.
-        expected: (n, m) float32 target tent counts ``g D`` around each point at ``anchor`` ...
-        anchor: (n, 2) ... the positions at the refresh; for points near borders and edges ...
+        anchor: (n, 2) the positions at the refresh, where the expected counts ``g D`` are taken
+            (:meth:`expected`: the target ``target`` (H, W, m) sampled there, ``side_px`` pixels per
+            map unit, times ``denominators``); for points near borders and edges ...
         sloped: (K,) int64 ... (these) the expected counts change with position ...
         expected_slope: (K, m, 2) ... by ``g grad D`` (linearised between refreshes).
         variance_force: (K, 2) gradient of the variance compensation at the sloped points (see :func:`_variance_force`).
@@ -151,8 +151,10 @@ class Neighbourhoods:
     neighbours: np.ndarray
     guide: np.ndarray
     spacing: np.ndarray
-    expected: np.ndarray
     anchor: np.ndarray
+    target: np.ndarray
+    side_px: int
+    denominators: Denominators
     sloped: np.ndarray
     expected_slope: np.ndarray
     variance_force: np.ndarray
@@ -163,6 +165,10 @@ class Neighbourhoods:
     radii: np.ndarray
     regularity: np.ndarray
     structure: np.ndarray
+
+    def expected(self) -> np.ndarray:
+        """(n, m) float64 target tent counts ``g D`` around each point at its anchor (plain numpy)."""
+        return sample_grid(self.target, self.anchor, self.side_px).astype(np.float64) * self.denominators.full()
 
     @property
     def centres(self) -> np.ndarray:
@@ -180,11 +186,6 @@ def window_taper(u: np.ndarray) -> np.ndarray:
     return q * q
 
 
-def window_squares(values: np.ndarray, windows: Windows) -> np.ndarray:
-    """(W, m) ``sum_c a_wc^2 values_c`` for per-point values (n, m)."""
-    return window_sums(values, windows.offsets, windows.members, windows.weights**2)
-
-
 class WindowSampler:
     """Window centres for every scale, stratified with the map's intensity (independent of any pattern)."""
 
@@ -197,20 +198,26 @@ class WindowSampler:
         return [self.sampler.draw(max(1, round(self.n / scale.points_per_window)), rng) for scale in WINDOW_SCALES]
 
 
-def _windows(scale: WindowScale, fields: MapFields, grid: CellGrid, latent: np.ndarray, variance: np.ndarray,
-             centres: np.ndarray, workspace: Workspace, name: str) -> Windows:
+def _windows(scale: WindowScale, fields: MapFields, grid: CellGrid, latent: np.ndarray, centres: np.ndarray,
+             workspace: Workspace, name: str) -> Windows:
+    """Members and weights of windows at ``centres`` (W, 2); their deviation is set by :func:`find_neighbourhoods`."""
     reach = scale.radius * sample_grid(fields.spacing, centres, fields.side_px)[:, 0].astype(np.float64)
-    offsets, members, distance = grid.query(centres, reach, workspace=workspace, name=name)
+    offsets, members, distance = grid.query(centres, reach, workspace=workspace, name=name)  # distances: one shared buffer
     centre_latent = sample_grid(fields.latent, centres, fields.side_px) if fields.guide else None
     weights = window_weights(distance, offsets, reach, latent, members, centre_latent, GUIDE_BANDWIDTH,
                              workspace.empty(f"{name}.weights", len(members), np.float32))
-    windows = Windows(scale, offsets, members, weights, np.empty(0))
-    # dead-zone windows need the true spread (it sets the zone); quadratic ones only a weight per radius, kept flat
-    # so that the large radii, whose counts vary most, still count (they carry a blue pattern's second shell)
+    return Windows(scale, offsets, members, weights, np.empty(0))
+
+
+def _deviation(scale: WindowScale, squares: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(W, m) float32 standard deviation of windows' cumulative counts from their sums of ``a^2 V`` (W, m).
+
+    Dead-zone windows need the true spread (it sets the zone); quadratic ones only a weight per radius, kept flat
+    so that the large radii, whose counts vary most, still count (they carry a blue pattern's second shell).
+    """
     growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
-    factor = CUMULATIVE_VARIANCE[0] + growth * (fields.radii + (fields.radii[1] - fields.radii[0]))
-    windows.deviation = np.sqrt(factor * window_squares(variance, windows) + VARIANCE_FLOOR).astype(np.float32)
-    return windows
+    factor = CUMULATIVE_VARIANCE[0] + growth * (radii + (radii[1] - radii[0]))
+    return np.sqrt(factor * squares + VARIANCE_FLOOR).astype(np.float32)
 
 
 def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None,
@@ -241,18 +248,22 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
         row_guides(latent, latent, offsets, neighbours, GUIDE_BANDWIDTH, out=guide)
     else:
         guide.fill(1.0)
-    expected, variance, regular, structured = point_terms(fields, xy, denominator, int(np.sum(fields.radii <= REGULAR_RANGE)),
-                                                          POISSON_TOLERANCE, STRUCTURE_RANGE, workspace)
-    windows = [_windows(scale, fields, grid, latent, variance, where, workspace, f"windows{i}")
+    windows = [_windows(scale, fields, grid, latent, where, workspace, f"windows{i}")
                for i, (scale, where) in enumerate(zip(WINDOW_SCALES, window_centres))]
     members = point_lists(windows, n, workspace)
+    bounds = window_bounds(windows)
+    squares, regular, structured = point_terms(fields, xy, denominator, members, bounds[-1],
+                                               int(np.sum(fields.radii <= REGULAR_RANGE)), POISSON_TOLERANCE, STRUCTURE_RANGE)
+    for family, lo, hi in zip(windows, bounds[:-1], bounds[1:]):
+        family.deviation = _deviation(family.scale, squares[lo:hi], fields.radii)
     sloped = denominator.sloped
     expected_slope = sample_grid(fields.target, xy[sloped], fields.side_px)[..., None] * denominator.slopes
     dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
     variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * np.cumsum(expected_slope, axis=1),
                                      fields.radii)
-    return Neighbourhoods(offsets, neighbours, guide, spacing, expected, xy.copy(), sloped, expected_slope,
-                          variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular, structured)
+    return Neighbourhoods(offsets, neighbours, guide, spacing, xy.copy(), fields.target, fields.side_px, denominator, sloped,
+                          expected_slope, variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular,
+                          structured)
 
 
 def _variance_force(windows: list[Windows], members: tuple[np.ndarray, np.ndarray, np.ndarray], sloped: np.ndarray,
@@ -307,7 +318,7 @@ def dead_zone(x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
 
 def expected_counts(xy: np.ndarray, hood: Neighbourhoods) -> np.ndarray:
     """(n, m) target tent counts at positions xy (n, 2), linearised around the refresh's positions."""
-    expected = hood.expected.astype(np.float64)
+    expected = hood.expected()
     expected[hood.sloped] += np.einsum("kjd,kd->kj", hood.expected_slope, xy[hood.sloped] - hood.anchor[hood.sloped])
     return expected
 
@@ -383,5 +394,5 @@ def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
     windows = hood.windows[0]
     poisson = windows.aggregate(fields.denominator_at(points))
     observed = windows.aggregate(pair_counts_reference(points, hood)) / poisson
-    target = windows.aggregate(hood.expected) / poisson
+    target = windows.aggregate(hood.expected()) / poisson
     return np.abs(observed - target).mean(axis=1), fields

@@ -36,60 +36,74 @@ if TYPE_CHECKING:
 _JIT = {"parallel": True, "cache": True, "fastmath": False}
 
 
+@numba.njit(cache=True)
+def _target_at(target, j, r0, r1, c0, c1, tx, ty):  # pragma: no cover - jitted
+    """Bilinear value at radius j of a (H, W, m) grid, rounded to float32 as :func:`synthesis.fields.sample_grid` gives it."""
+    return np.float32((target[r0, c0, j] * (1.0 - tx) + target[r0, c1, j] * tx) * (1.0 - ty)
+                      + (target[r1, c0, j] * (1.0 - tx) + target[r1, c1, j] * tx) * ty)
+
+
 @numba.njit(**_JIT)
-def _cumulative_excess(xy, offsets, neighbours, guide, spacing, inv_width, expected, anchor, slot, slope_x, slope_y,
-                       cumulative):  # pragma: no cover - jitted
-    n, m = cumulative.shape
-    for c in numba.prange(n):
-        row = cumulative[c]
-        for j in range(m):
-            row[j] = -expected[c, j]
-        k = slot[c]
-        if k >= 0:  # expected counts that move with the point (near borders and edges)
-            mx, my = xy[c, 0] - anchor[c, 0], xy[c, 1] - anchor[c, 1]
+def _window_sums_of_counts(xy, offsets, neighbours, guide, spacing, inv_width, target, side_px, anchor, exact, slot,
+                           denominators, slope_x, slope_y, member_offsets, member_window, member_weight,
+                           sums):  # pragma: no cover - jitted
+    threads, _, m = sums.shape
+    n = len(xy)
+    height, width, _ = target.shape
+    for t in numba.prange(threads):
+        acc = sums[t]
+        acc[:] = 0.0
+        row = np.empty(m)
+        for c in range(t * n // threads, (t + 1) * n // threads):
+            r0, r1, c0, c1, tx, ty = corners(height, width, anchor[c, 0] * side_px - 0.5, anchor[c, 1] * side_px - 0.5)
+            k = slot[c]
+            for j in range(m):  # minus the expected counts g D at the anchor ...
+                g = _target_at(target, j, r0, r1, c0, c1, tx, ty)
+                row[j] = -g * (exact[j] if k < 0 else denominators[k, j])
+            if k >= 0:  # ... moved along their slope near borders and edges
+                mx, my = xy[c, 0] - anchor[c, 0], xy[c, 1] - anchor[c, 1]
+                for j in range(m):
+                    row[j] -= slope_x[k, j] * mx + slope_y[k, j] * my
+            scale = inv_width / spacing[c]
+            xc, yc = xy[c, 0], xy[c, 1]
+            for p in range(offsets[c], offsets[c + 1]):  # plus the tent counts of the pairs
+                b = neighbours[p]
+                dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
+                d = math.sqrt(dx * dx + dy * dy) * scale
+                if d < m:
+                    j = int(d)
+                    f = d - j
+                    row[j] += guide[p] * (1.0 - f)
+                    if j + 1 < m:
+                        row[j + 1] += guide[p] * f
+            total = 0.0
             for j in range(m):
-                row[j] -= slope_x[k, j] * mx + slope_y[k, j] * my
-        scale = inv_width / spacing[c]
-        xc, yc = xy[c, 0], xy[c, 1]
-        for p in range(offsets[c], offsets[c + 1]):
-            b = neighbours[p]
-            dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
-            t = math.sqrt(dx * dx + dy * dy) * scale
-            if t < m:
-                j = int(t)
-                f = t - j
-                row[j] += guide[p] * (1.0 - f)
-                if j + 1 < m:
-                    row[j + 1] += guide[p] * f
-        total = 0.0
-        for j in range(m):
-            total += row[j]
-            row[j] = total
+                total += row[j]
+                row[j] = total
+            for e in range(member_offsets[c], member_offsets[c + 1]):  # into the windows of the point
+                a = member_weight[e]
+                w = member_window[e]
+                for j in range(m):
+                    acc[w, j] += a * row[j]
 
 
 @numba.njit(**_JIT)
-def _window_slopes(cumulative, offsets, members, weights, deviation, dead, scale, slope, loss):  # pragma: no cover
-    # one window family: dead zone and scale are the family's
-    windows, m = slope.shape
+def _window_slopes(sums, deviation, dead, scale, slope, loss):  # pragma: no cover - jitted
+    threads, windows, m = sums.shape
     for w in numba.prange(windows):
-        row = slope[w]
-        for j in range(m):
-            row[j] = 0.0
-        for q in range(offsets[w], offsets[w + 1]):
-            a = weights[q]
-            c = members[q]
-            for j in range(m):
-                row[j] += a * cumulative[c, j]
         penalty = 0.0
         for j in range(m):
-            x = row[j] / deviation[w, j]
-            excess = abs(x) - dead
+            total = 0.0
+            for t in range(threads):
+                total += sums[t, w, j]
+            x = total / deviation[w, j]
+            excess = abs(x) - dead[w]
             if excess > 0.0:
                 penalty += excess * excess
-                row[j] = math.copysign(2.0 * excess, x) * scale / deviation[w, j]
+                slope[w, j] = math.copysign(2.0 * excess, x) * scale[w] / deviation[w, j]
             else:
-                row[j] = 0.0
-        loss[w] = penalty * scale
+                slope[w, j] = 0.0
+        loss[w] = penalty * scale[w]
 
 
 @numba.njit(**_JIT)
@@ -140,19 +154,6 @@ def _gradient(xy, offsets, neighbours, guide, spacing, inv_width, point_offsets,
 
 
 @numba.njit(**_JIT)
-def _window_sums(values, window_offsets, members, weights, out):  # pragma: no cover - jitted
-    windows, m = out.shape
-    for w in numba.prange(windows):
-        for j in range(m):
-            out[w, j] = 0.0
-        for q in range(window_offsets[w], window_offsets[w + 1]):
-            a = weights[q]
-            c = members[q]
-            for j in range(m):
-                out[w, j] += a * values[c, j]
-
-
-@numba.njit(**_JIT)
 def _row_guides(latent, row_latent, offsets, members, bandwidth, out):  # pragma: no cover - jitted
     for r in numba.prange(len(offsets) - 1):
         za, zb = row_latent[r, 0], row_latent[r, 1]
@@ -176,48 +177,59 @@ def row_guides(latent: np.ndarray, row_latent: np.ndarray, offsets: np.ndarray, 
 
 
 @numba.njit(**_JIT)
-def _point_terms(target, dispersion, px, py, exact, slot, values, short, tolerance, structure_range,
-                 expected, variance, regularity, structure):  # pragma: no cover - jitted
-    height, width, m = target.shape
-    for c in numba.prange(len(px)):
-        r0, r1, c0, c1, tx, ty = corners(height, width, px[c], py[c])
-        total, below, furthest = 0.0, 0.0, 0.0
-        for j in range(m):
-            g = np.float32((target[r0, c0, j] * (1.0 - tx) + target[r0, c1, j] * tx) * (1.0 - ty)
-                           + (target[r1, c0, j] * (1.0 - tx) + target[r1, c1, j] * tx) * ty)
-            s = np.float32((dispersion[r0, c0, j] * (1.0 - tx) + dispersion[r0, c1, j] * tx) * (1.0 - ty)
-                           + (dispersion[r1, c0, j] * (1.0 - tx) + dispersion[r1, c1, j] * tx) * ty)
-            e = g * (exact[j] if slot[c] < 0 else values[slot[c], j])
-            expected[c, j] = e
-            total += e
-            variance[c, j] = s * (total + 1.0)
-            if j < short:
-                below += g
-            furthest = max(furthest, abs(g - 1.0))
-        regularity[c] = min(max(1.0 - below / short, 0.0), 1.0)
-        structure[c] = min(max((furthest - tolerance) / structure_range, 0.0), 1.0)
+def _point_terms(target, dispersion, px, py, exact, slot, values, short, tolerance, structure_range, member_offsets,
+                 member_window, member_weight, squares, regularity, structure):  # pragma: no cover - jitted
+    threads, _, m = squares.shape
+    n = len(px)
+    height, width, _ = target.shape
+    for t in numba.prange(threads):
+        acc = squares[t]
+        acc[:] = 0.0
+        variance = np.empty(m)
+        for c in range(t * n // threads, (t + 1) * n // threads):
+            r0, r1, c0, c1, tx, ty = corners(height, width, px[c], py[c])
+            total, below, furthest = 0.0, 0.0, 0.0
+            for j in range(m):
+                g = _target_at(target, j, r0, r1, c0, c1, tx, ty)
+                s = _target_at(dispersion, j, r0, r1, c0, c1, tx, ty)
+                total += g * (exact[j] if slot[c] < 0 else values[slot[c], j])
+                variance[j] = s * (total + 1.0)
+                if j < short:
+                    below += g
+                furthest = max(furthest, abs(g - 1.0))
+            regularity[c] = min(max(1.0 - below / short, 0.0), 1.0)
+            structure[c] = min(max((furthest - tolerance) / structure_range, 0.0), 1.0)
+            for e in range(member_offsets[c], member_offsets[c + 1]):
+                a = member_weight[e]
+                w = member_window[e]
+                for j in range(m):
+                    acc[w, j] += a * a * variance[j]
 
 
-def point_terms(fields: MapFields, xy: np.ndarray, denominators: Denominators, short: int, tolerance: float,
-                structure_range: float, workspace: Workspace | None = None) -> tuple[np.ndarray, ...]:
-    """Per-point terms of the objective at xy (n, 2), the target and dispersion sampled on the fly (bilinear, float32 as
+def point_terms(fields: MapFields, xy: np.ndarray, denominators: Denominators, members: tuple[np.ndarray, np.ndarray, np.ndarray],
+                windows: int, short: int, tolerance: float, structure_range: float,
+                threads: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-point terms at xy (n, 2), the target and dispersion sampled on the fly (bilinear, float32 as
     :func:`synthesis.fields.sample_grid`):
 
-    expected tent counts ``g D`` (n, m) float32, the cumulative counts' variance ``dispersion (cumsum(g D) + 1)``
-    (n, m) float32 (``workspace`` buffers ``expected`` and ``objective.cumulative``: the variance is overwritten by
-    the next :class:`FastObjective` of the same workspace), and the target's regularity (n,) (1 - mean of
-    its first ``short`` radii) and structure (n,) (see :func:`synthesis.edgepcf.structure`).
+    the window sums (``windows``, m) of ``a_wc^2 V_c``, V_c the variance of point c's cumulative counts,
+    ``dispersion (cumsum(g D) + 1)`` (the windows' Poisson-model variance; ``members``: the point lists of
+    :func:`point_lists`), and the target's regularity (n,) (1 - mean of its first ``short`` radii) and structure (n,)
+    (see :func:`synthesis.edgepcf.structure`). No (n, m) array is stored.
     """
-    workspace = scratch(workspace)
     n, m = len(xy), len(fields.radii)
-    expected = workspace.empty("expected", (n, m), np.float32)
-    # the variance is needed only while the windows are built, the objective's cumulative counts only after: one buffer
-    variance = workspace.empty("objective.cumulative", (n, m), np.float32)
+    threads = _threads(threads)
+    squares = np.empty((threads, windows, m))
     regularity, structure = np.empty(n), np.empty(n)
     _point_terms(fields.target, fields.dispersion, xy[:, 0] * fields.side_px - 0.5, xy[:, 1] * fields.side_px - 0.5,
                  denominators.exact, denominators.slot, denominators.values, short, tolerance, structure_range,
-                 expected, variance, regularity, structure)
-    return expected, variance, regularity, structure
+                 *members, squares, regularity, structure)
+    return squares.sum(axis=0), regularity, structure
+
+
+def _threads(threads: int | None) -> int:
+    """Thread runs of a chunked kernel: ``threads`` capped at numba's count (default: numba's count)."""
+    return numba.get_num_threads() if threads is None else max(1, min(threads, numba.get_num_threads()))
 
 
 @numba.njit(cache=True)
@@ -319,36 +331,40 @@ def sloped_window_sums(sloped: np.ndarray, point_offsets: np.ndarray, point_wind
 class FastObjective:
     """Objective and gradient for one neighbourhood, with buffers reused across iterations.
 
-    ``threads``: parallel runs of centres in the gradient pass (at most numba's thread count);
+    ``threads``: parallel runs of points (at most numba's thread count); each
+    run has its own window sums (``threads`` x W x m float32) and gradient part.
     ``workspace``: where the buffers live (reused by the next refresh's objective).
     """
 
     def __init__(self, hood: Neighbourhoods, threads: int | None = None, workspace: Workspace | None = None):
         workspace = scratch(workspace)
         self.hood = hood
-        n, m = hood.expected.shape
+        n, m = len(hood.spacing), len(hood.radii)
+        threads = _threads(threads)
         self.inv_width = 1.0 / float(hood.radii[1] - hood.radii[0])
-        self.bounds = window_bounds(hood.windows)
-        self.slot = np.full(n, -1, np.int32)
-        self.slot[hood.sloped] = np.arange(len(hood.sloped), dtype=np.int32)
+        bounds = window_bounds(hood.windows)
+        windows = bounds[-1]
+        self.deviation = np.concatenate([family.deviation for family in hood.windows])
+        self.dead = np.concatenate([np.full(hi - lo, family.scale.dead_zone) for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:])])
+        self.scale = np.concatenate([np.full(hi - lo, family.scale.weight / ((hi - lo) * m))
+                                     for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:])])
+        self.slot = hood.denominators.slot
         self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each
         self.slope_y = np.ascontiguousarray(hood.expected_slope[..., 1])
-        self.cumulative = workspace.empty("objective.cumulative", (n, m), np.float32)
-        self.slopes = workspace.empty("objective.slopes", (self.bounds[-1], m), np.float32)
-        self.losses = workspace.empty("objective.losses", self.bounds[-1])
-        threads = numba.get_num_threads() if threads is None else max(1, min(threads, numba.get_num_threads()))
+        self.sums = workspace.empty("objective.sums", (threads, windows, m), np.float32)
+        self.slopes = workspace.empty("objective.slopes", (windows, m), np.float32)
+        self.losses = workspace.empty("objective.losses", windows)
         self.parts = workspace.empty("objective.parts", (threads, n, 2))
 
     def __call__(self, xy: np.ndarray, gradient: bool = True) -> tuple[float, np.ndarray | None]:
         """Objective and gradient (n, 2) (a reused buffer when single-threaded: copy it to keep it) at xy (n, 2) float64."""
         hood = self.hood
-        _cumulative_excess(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.expected,
-                           hood.anchor, self.slot, self.slope_x, self.slope_y, self.cumulative)
-        m = self.cumulative.shape[1]
-        for windows, lo, hi in zip(hood.windows, self.bounds[:-1], self.bounds[1:]):
-            _window_slopes(self.cumulative, windows.offsets, windows.members, windows.weights, windows.deviation,
-                           windows.scale.dead_zone, windows.scale.weight / ((hi - lo) * m), self.slopes[lo:hi],
-                           self.losses[lo:hi])
+        denominators = hood.denominators
+        _window_sums_of_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.target,
+                               hood.side_px, hood.anchor, denominators.exact, self.slot, denominators.values,
+                               self.slope_x, self.slope_y, hood.member_offsets, hood.member_window, hood.member_weight,
+                               self.sums)
+        _window_slopes(self.sums, self.deviation, self.dead, self.scale, self.slopes, self.losses)
         loss = float(self.losses.sum())
         if len(hood.sloped):
             loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))
@@ -358,13 +374,3 @@ class FastObjective:
                   hood.member_window, hood.member_weight, self.slopes, self.slot, self.slope_x, self.slope_y,
                   hood.variance_force, self.parts)
         return loss, self.parts[0] if len(self.parts) == 1 else self.parts.sum(axis=0)
-
-
-def window_sums(values: np.ndarray, offsets: np.ndarray, members: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(W, m) float64 window sums ``sum_q weights[q] values[members[q]]`` over each window's entries ``offsets[w]:offsets[w + 1]``.
-
-    values (n, m) float32 or float64.
-    """
-    out = np.empty((len(offsets) - 1, values.shape[1]))
-    _window_sums(np.ascontiguousarray(values), offsets, members, weights, out)
-    return out

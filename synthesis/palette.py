@@ -7,9 +7,15 @@ shipped as ``synthesis/assets/palette.npz`` with a provenance record
 * **encode** — which PCF does the chroma (a, b) stand for? :meth:`Palette.pcf`
   samples the 256 x 256 x m look-up table bilinearly, so 8-bit, 16-bit and
   float maps all work (the 8-bit grid points are the table entries).
-* **decode** — which chroma describes this point pattern? :meth:`Palette.decode`
-  measures its perceptual features and returns the coordinate of the nearest
-  exemplar (paper eq. 5), comparing PCA-reduced features.
+* **decode** — which chroma describes this point pattern? :meth:`Palette.locate`
+  measures its perceptual features (PCA-reduced) and interpolates between the
+  coordinates of the :data:`DECODE_NEIGHBOURS` perceptually nearest exemplars
+  (inverse-distance weights, power :data:`DECODE_POWER`), so nearby looks get
+  nearby colours rather than the same exemplar's or a jump (the paper's eq. 5
+  takes the nearest exemplar alone). How far the nearest exemplar is, in units
+  of the corpus's own exemplar spacing, says how much the colour can be
+  trusted: beyond :data:`OUTSIDE_CORPUS` the pattern is unlike anything the
+  palette was built from.
 
 Latent ``z`` in [0, 1]^2 and chroma relate by ``a, b = 255 z - 128``.
 """
@@ -33,6 +39,10 @@ LUT_SIZE = 256
 DISPERSION_LUT_SIZE = 64  # the dispersion table varies slowly: 64 x 64 nodes
 POPULATED_RADIUS = 0.03  # latent distance to the nearest exemplar within which a colour counts as populated
 POPULATED_GRID = 64  # cells per side of the grid the populated region is sampled on
+DECODE_NEIGHBOURS = 8  # exemplars interpolated by a decode
+DECODE_POWER = 4.0  # inverse-distance weight exponent of the decode (in PCA feature space)
+CLOSE_TO_CORPUS = 1.5  # nearest-exemplar distance (in exemplar spacings) up to which a decode is confident
+OUTSIDE_CORPUS = 3.0  # nearest-exemplar distance (in exemplar spacings) beyond which a pattern is outside the corpus
 
 
 def latent_to_ab(z: np.ndarray) -> np.ndarray:
@@ -43,6 +53,31 @@ def latent_to_ab(z: np.ndarray) -> np.ndarray:
 def ab_to_latent(ab: np.ndarray) -> np.ndarray:
     """Chroma (a, b) (..., 2) in [-128, 127] -> latent z in [0, 1]."""
     return (np.asarray(ab, np.float64) + 128.0) / 255.0
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A decoded colour and how much to trust it.
+
+    Attributes:
+        a, b: chroma in [-128, 127].
+        nearest_exemplar: index of the perceptually nearest corpus exemplar.
+        exemplar_distance: feature distance to it, in units of the corpus's median
+            distance between an exemplar and its nearest other exemplar (0 = an
+            exemplar; about 1 = as close as the corpus's own neighbours).
+    """
+
+    a: float
+    b: float
+    nearest_exemplar: int
+    exemplar_distance: float
+
+    @property
+    def confidence(self) -> str:
+        """``"high"`` (within :data:`CLOSE_TO_CORPUS`), ``"low"`` or ``"outside the corpus"`` (beyond :data:`OUTSIDE_CORPUS`)."""
+        if self.exemplar_distance <= CLOSE_TO_CORPUS:
+            return "high"
+        return "low" if self.exemplar_distance <= OUTSIDE_CORPUS else "outside the corpus"
 
 
 def hue_chroma(a: float, b: float) -> tuple[float, float]:
@@ -175,15 +210,33 @@ class Palette:
         scaled = scale_blocks(features, self.block_scale)
         return (scaled - self.feature_mean) @ self.components.T
 
-    def nearest_exemplar(self, points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = False) -> int:
-        """Index of the exemplar perceptually nearest to points (n, 2) in [0, w] x [0, h]."""
-        code = self.reduce(self._extractor(points, domain, periodic))
-        return int(np.argmin(np.sum((self.codes - code) ** 2, axis=1)))
+    @functools.cached_property
+    def exemplar_spacing(self) -> float:
+        """Median distance between an exemplar's code and its nearest other exemplar's (the unit of
+        :attr:`Decoded.exemplar_distance`)."""
+        from scipy.spatial import cKDTree
+
+        distance, _ = cKDTree(self.codes.astype(np.float64)).query(self.codes.astype(np.float64), k=2)
+        return float(np.median(distance[:, 1]))
+
+    def locate_code(self, code: np.ndarray) -> Decoded:
+        """Decode a PCA code (k,): IDW of the nearest exemplars' latents (see the module docstring)."""
+        distance = np.sqrt(np.sum((self.codes.astype(np.float64) - code) ** 2, axis=1))
+        count = min(DECODE_NEIGHBOURS, len(distance))
+        nearest = np.argpartition(distance, count - 1)[:count]
+        nearest = nearest[np.argsort(distance[nearest])]
+        weights = 1.0 / np.maximum(distance[nearest], 1e-9 * self.exemplar_spacing) ** DECODE_POWER
+        a, b = latent_to_ab(weights @ self.exemplar_z[nearest] / weights.sum())
+        return Decoded(float(a), float(b), int(nearest[0]), float(distance[nearest[0]] / self.exemplar_spacing))
+
+    def locate(self, points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = False) -> Decoded:
+        """Colour and confidence of a stationary pattern, points (n, 2) in [0, w] x [0, h], at any density."""
+        return self.locate_code(self.reduce(self._extractor(points, domain, periodic)))
 
     def decode(self, points: np.ndarray, domain: tuple[float, float] = (1.0, 1.0), periodic: bool = False) -> tuple[float, float]:
-        """Chroma (a, b) of a stationary pattern, points (n, 2) in [0, w] x [0, h], at any density."""
-        a, b = latent_to_ab(self.exemplar_z[self.nearest_exemplar(points, domain, periodic)])
-        return float(a), float(b)
+        """Chroma (a, b) of a stationary pattern, points (n, 2) in [0, w] x [0, h], at any density (:meth:`locate`)."""
+        decoded = self.locate(points, domain, periodic)
+        return decoded.a, decoded.b
 
     # --- the populated region ----------------------------------------------
     @functools.cached_property

@@ -105,15 +105,24 @@ def test_point_terms_match_the_plain_formulas():
     denominators = DenominatorTracker(fields).update(xy)
     assert 0 < len(denominators.sloped) < len(xy)  # borders and the edge are stored, the rest is the exact value
     np.testing.assert_allclose(denominators.full(), fields.denominator_at(xy), rtol=1e-12)
+    hood = find_neighbourhoods(fields, xy)
+    members = (hood.member_offsets, hood.member_window, hood.member_weight)
+    windows = sum(len(family.offsets) - 1 for family in hood.windows)
     short = int(np.sum(fields.radii <= REGULAR_RANGE))
-    expected, variance, regular, structured = point_terms(fields, xy, denominators, short, POISSON_TOLERANCE, STRUCTURE_RANGE)
+    squares, regular, structured = point_terms(fields, xy, denominators, members, windows, short, POISSON_TOLERANCE,
+                                               STRUCTURE_RANGE)
     target = sample_grid(fields.target, xy, fields.side_px).astype(np.float64)
     dispersion = sample_grid(fields.dispersion, xy, fields.side_px).astype(np.float64)
-    plain = target * fields.denominator_at(xy)
-    np.testing.assert_allclose(expected, plain, rtol=1e-6, atol=1e-9)
-    np.testing.assert_allclose(variance, dispersion * (np.cumsum(plain, axis=1) + 1.0), rtol=1e-5)
+    variance = dispersion * (np.cumsum(target * fields.denominator_at(xy), axis=1) + 1.0)
+    plain = np.zeros((windows, len(fields.radii)))
+    first = 0
+    for family in hood.windows:
+        np.add.at(plain, first + family.owners, family.weights.astype(np.float64)[:, None] ** 2 * variance[family.members])
+        first += len(family.offsets) - 1
+    np.testing.assert_allclose(squares, plain, rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(regular, regularity(target, fields.radii), atol=1e-6)
     np.testing.assert_allclose(structured, structure(target), atol=1e-6)
+    np.testing.assert_allclose(hood.expected(), target * fields.denominator_at(xy), rtol=1e-12)
 
 
 def test_tracker_recomputes_moved_points_and_carries_the_others():
