@@ -75,13 +75,14 @@ class PointSet:
         return len(self.xy)
 
 
-def read_points(path: PathLike, domain: tuple[float, float] | None = None) -> PointSet:
+def read_points(path: PathLike, domain: tuple[float, float] | None = None, allow_empty: bool = False) -> PointSet:
     """Read a point file (``.txt``/``.csv``/``.xy``/``.pts`` text, or ``.npy``).
 
     Args:
         path: the file.
         domain: (w, h) the points must lie in. Default: the file's
             ``# domain: W H`` comment if any, else the unit square.
+        allow_empty: accept a file without points (``infer``: an empty pattern has a white map).
 
     Raises:
         PointFileError: missing file, unknown format, or malformed content;
@@ -98,7 +99,9 @@ def read_points(path: PathLike, domain: tuple[float, float] | None = None) -> Po
     else:
         raise PointFileError(f"{path}: unsupported point format '{path.suffix}' (use .txt, .csv or .npy)")
     if len(values) == 0:
-        raise PointFileError(f"{path}: no points (empty file)")
+        if not allow_empty:
+            raise PointFileError(f"{path}: no points (empty file)")
+        values = np.empty((0, 2))
     try:
         domain = check_domain(next(d for d in (domain, file_domain, (1.0, 1.0)) if d is not None))
     except PointFileError as exc:

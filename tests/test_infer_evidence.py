@@ -16,6 +16,7 @@ from export.onnx import export_onnx
 from patternshop_nn.networks import DualBranchUNet
 from synthesis.generators import generate
 from synthesis.labmap import LabMap
+from synthesis.mapio import read_map
 from synthesis.points import PointSet, write_points
 from tests.conftest import run_cli
 
@@ -106,3 +107,12 @@ def test_convert_reads_each_file_at_its_own_scale(tiny_model: Path, tmp_path: Pa
     assert len(dense.warnings) == 1 and "points per ink (automatic" in dense.warnings[0] and not light.warnings
     dense, _ = convert_points(sources, tmp_path / "given", OnnxModel(tiny_model), workers=1, points_per_ink=50_000)
     assert len(dense.warnings) == 1 and "saturated" in dense.warnings[0]
+
+
+def test_infer_takes_an_empty_pattern(tiny_model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """No points is a pattern too (its map should be white; what the network makes of it is the evaluation's business)."""
+    source = tmp_path / "empty.txt"
+    source.write_text("# domain: 1 0.5\n")
+    status, _, err = run_cli(["infer", str(source), str(tmp_path / "e.tif"), "--model", str(tiny_model)], capsys)
+    assert status == 0 and "from 0 points" in err
+    assert read_map(tmp_path / "e.tif").lab.shape == (128, 256, 3)

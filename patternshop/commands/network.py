@@ -80,7 +80,7 @@ def run_infer(args: argparse.Namespace) -> None:
 
     model = OnnxModel(args.model, threads=args.threads)
     check_palette(model)
-    points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
+    points = read_points(args.points, domain=tuple(args.domain) if args.domain else None, allow_empty=True)
     scale = ScaleChoice(args.points_per_ink, False) if args.points_per_ink else choose_points_per_ink(points, POINTS_PER_INK)
     (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink, scale.points_per_ink)
     width = map_width(points.domain, model, args.width)
