@@ -116,3 +116,44 @@ def test_jitter_is_a_weak_blue_noise() -> None:
     assert 0.4 < band("jitter", 12, 24) < 0.85  # rises gradually, unlike Poisson-disk or step noise
     assert 0.8 < band("jitter", 40, 63) < 1.2
     assert spectrum("jitter")[25:46].max() < 1.3  # no peak
+
+
+def test_new_presets_are_registered() -> None:
+    assert {"lattice", "perturbed", "lloyd", "matern"} <= set(GENERATORS)
+
+
+def test_perfect_lattice_is_all_bragg_peaks() -> None:
+    xy = points("lattice", N, 0)  # 1024 = 32 x 32: no vacancy
+    side = 32
+    residue = np.mod(xy * side, 1.0)
+    np.testing.assert_allclose(residue - residue[0], 0.0, atol=1e-9)  # every point on one shifted grid
+    assert spectrum("lattice")[1:31].max() < 1e-6  # nothing below the first peak at b = 32
+
+
+def test_perturbed_lattice_is_a_very_regular_blue_noise() -> None:
+    assert min_distance(points("perturbed", N, 0)) > 0.45 * r_max(N)
+    assert spectrum("perturbed")[25:46].max() > 3 * spectrum("blue")[25:46].max()  # Bragg peaks survive the jitter
+    assert band("perturbed", 1, 8) < band("blue", 1, 8)
+
+
+def test_lloyd_is_a_stronger_blue_noise_than_poisson_disk() -> None:
+    for seed in SEEDS:
+        assert min_distance(points("lloyd", N, seed)) > 0.65 * r_max(N)
+    assert spectrum("lloyd")[25:46].max() > spectrum("blue")[25:46].max()
+
+
+def test_matern_clumps_are_tight_and_randomly_placed() -> None:
+    assert band("matern", 1, 8) > 3.0  # clumps at random: low frequencies carry their count
+    assert band("matern", 1, 8) < band("red", 1, 8)  # smaller clusters than red's 16
+
+
+def test_generator_parameters_sweep_their_families() -> None:
+    from synthesis.generators import blue, green, jitter, red
+
+    rng = lambda: np.random.default_rng(4)  # noqa: E731 - same stream for every variant
+    assert min_distance(blue.generate(N, rng(), relative_radius=0.4)) < 0.6 * r_max(N)
+    assert min_distance(jitter.generate(N, rng(), strength=0.25)) > 0.7 / 32
+    wide, tight = (red.generate(N, rng(), points_per_cluster=8, cluster_std=s) for s in (1.0, 0.2))
+    assert min_distance(tight) < min_distance(wide)
+    sizes = green.generate(N, rng(), points_per_cluster=3)
+    assert sizes.shape == (N, 2)

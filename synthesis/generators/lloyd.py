@@ -4,7 +4,7 @@ Each iteration moves every point to the centroid of its toroidal Voronoi cell,
 the cell being sampled by a regular grid of about :data:`SAMPLES_PER_POINT`
 samples per point, shifted by a fresh random offset each iteration (so no
 point snaps to the grid). A few iterations give a blue noise stronger than
-Poisson-disk sampling (minimum distance about 0.8 r_max after 30); many
+Poisson-disk sampling (minimum distance above 0.65 r_max after 30); many
 converge towards patches of hexagonal lattice. The spectrum has no low
 frequencies and a tall peak at the mean spacing (about 3 after 30 iterations).
 
