@@ -24,6 +24,11 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
   a, b become the method's preset colour (:data:`data_gen.stipplers.LABELS`)
   of the pairs' palette, so the network does not learn the synthesiser's
   fingerprint. At share 0 (the default) items and config keys are as before.
+* Light and empty content (issue 14): with ``sparse.share`` > 0, that share of
+  the maps has its density multiplied by a factor drawn log-uniformly in
+  ``sparse.scale`` and up to ``sparse.holes`` empty discs cut out of it; with
+  ``sparse.empty_share`` > 0, that share of the items is empty (no points, a
+  white map). Both at 0 (the default): items and config keys as before.
 
 Settings: ``conf/pairs.yaml`` and ``conf/dataset/*.yaml``; any value can be
 overridden (``workers=2 synthesis.points_per_ink=50000 out_dir=/data/pairs``).
@@ -68,6 +73,7 @@ class PairSettings:
     iterations: int | None
     palette: str | None  # None: the shipped palette
     other_methods: dict  # {"share": float in [0, 1], "methods": {name: weight}} (see the module docstring)
+    sparse: dict  # {"share", "scale": [lo, hi], "holes", "empty_share"} (see the module docstring)
 
     @classmethod
     def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
@@ -77,7 +83,8 @@ class PairSettings:
             return cls(dataset=OmegaConf.to_container(cfg.dataset, resolve=True), seed=int(cfg.seed), map_size=int(cfg.map_size),
                        raster_size=int(cfg.raster_size), chunk=int(cfg.chunk), points_per_ink=float(cfg.synthesis.points_per_ink),
                        schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette,
-                       other_methods=other_methods_setting(OmegaConf.to_container(cfg.get("other_methods") or {}, resolve=True)))
+                       other_methods=other_methods_setting(OmegaConf.to_container(cfg.get("other_methods") or {}, resolve=True)),
+                       sparse=sparse_setting(OmegaConf.to_container(cfg.get("sparse") or {}, resolve=True)))
         except (TypeError, ValueError) as exc:  # e.g. map_size=big: a user error, one line like the others
             raise PatternshopError(f"bad pair setting: {exc}") from exc
 
@@ -90,8 +97,10 @@ class PairSettings:
         """Short hash of the settings and the palette file's contents."""
         content = {"format": FORMAT, **asdict(self), "palette": file_sha256(self.palette_file())}
         content["dataset"] = {k: v for k, v in self.dataset.items() if k != "items"}  # only bounds how many
-        if not self.other_methods["share"]:  # folders made before the option keep their key
+        if not self.other_methods["share"]:  # folders made before these options keep their key
             del content["other_methods"]
+        if not (self.sparse["share"] or self.sparse["empty_share"]):
+            del content["sparse"]
         return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -109,6 +118,39 @@ def other_methods_setting(config: dict) -> dict:
     if share and (min(methods.values(), default=0.0) < 0 or sum(methods.values()) <= 0):
         raise ValueError("other_methods.methods needs weights >= 0 with a positive sum")
     return {"share": share, "methods": methods}
+
+
+def sparse_setting(config: dict) -> dict:
+    """``sparse`` config -> {"share", "scale", "holes", "empty_share"} checked (shares in [0, 1], 0 < lo <= hi <= 1)."""
+    share, empty_share = float(config.get("share", 0.0)), float(config.get("empty_share", 0.0))
+    low, high = (float(value) for value in config.get("scale", (0.03, 0.4)))
+    holes = int(config.get("holes", 3))
+    if not (0.0 <= share <= 1.0 and 0.0 <= empty_share <= 1.0):
+        raise ValueError(f"sparse.share and sparse.empty_share must be in [0, 1], got {share:g} and {empty_share:g}")
+    if not 0.0 < low <= high <= 1.0 or holes < 0:
+        raise ValueError(f"sparse.scale needs 0 < lo <= hi <= 1 and sparse.holes >= 0, got [{low:g}, {high:g}] and {holes}")
+    return {"share": share, "scale": [low, high], "holes": holes, "empty_share": empty_share}
+
+
+def sparse_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> LabMap:
+    """The map, lightened and holed for a share of the items, emptied for another (see the module docstring).
+
+    Draws from ``rng`` only when ``sparse.share`` or ``sparse.empty_share`` is > 0.
+    """
+    options = settings.sparse
+    density = None
+    if options["empty_share"] and rng.random() < options["empty_share"]:
+        density = np.zeros(lab_map.L.shape)
+    elif options["share"] and rng.random() < options["share"]:
+        low, high = options["scale"]
+        density = lab_map.density() * np.exp(rng.uniform(np.log(low), np.log(high)))
+        rows, cols = np.indices(density.shape)
+        for _ in range(int(rng.integers(0, options["holes"] + 1))):
+            (row, col), radius = rng.random(2) * density.shape, rng.uniform(0.05, 0.25) * max(density.shape)
+            density[(rows - row) ** 2 + (cols - col) ** 2 < radius**2] = 0.0
+    if density is None:
+        return lab_map
+    return target_to_map(map_to_target(LabMap.from_density_latent(density, lab_map.latent())))  # 8-bit, as stored
 
 
 def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap, n: int,
@@ -138,13 +180,19 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
     from synthesis.synthesize import point_count, synthesize
 
     rng = np.random.default_rng([settings.seed, item])
-    target = map_to_target(maker.make(item, rng))
-    lab_map = target_to_map(target)
-    n = point_count(lab_map, settings.points_per_ink)
-    if n < 2:
+    lab_map = sparse_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
+    target = map_to_target(lab_map)
+    try:
+        n = point_count(lab_map, settings.points_per_ink)
+    except PatternshopError:  # too little ink for one point: only sparse items get here (makers skip white maps)
+        n = 0
+    if n == 1:
         raise SourceError(f"{maker.source(item)}: only {n} point(s) at points_per_ink={settings.points_per_ink:g}")
-    other = other_method_points(settings, maker, lab_map, n, rng)
-    if other is not None:
+    other = other_method_points(settings, maker, lab_map, n, rng) if n else None
+    if n == 0:  # an empty item (sparse.empty_share, or a map lightened below one point)
+        xy = np.zeros((0, 2), np.float32)
+        meta = {"item": item, "source": maker.source(item), "n": 0, "method": "empty"}
+    elif other is not None:
         lab_map, points, method = other
         target, xy = map_to_target(lab_map), points.astype(np.float32)
         meta = {"item": item, "source": maker.source(item), "n": len(xy), "method": method}

@@ -637,9 +637,29 @@ def test_other_methods_share_zero_keeps_items_and_keys():
     def settings(*overrides):
         return PairSettings.from_config(compose_config("pairs", ["map_size=64", *overrides]))
 
-    assert settings().key() == settings("other_methods.methods={random: 2.0}").key()
+    assert settings().key() == settings("other_methods.methods={random: 2.0}").key() == settings("sparse.holes=5").key()
+    assert settings().key() != settings("sparse.empty_share=0.1").key()
     assert settings().key() != settings("other_methods.share=0.5").key()
     with pytest.raises(PatternshopError, match="unknown other_methods.methods"):
         settings("other_methods.share=0.5", "+other_methods.methods.voronoi=1")
     with pytest.raises(PatternshopError, match=r"share must be in \[0, 1\]"):
         settings("other_methods.share=2")
+
+
+def test_sparse_items_are_light_holed_or_empty(tmp_path):
+    """sparse.share=1 lightens every map (density x 0.03-0.4, holes); empty_share=0.5 empties about half of the items."""
+    base = ["workers=1", "map_size=64", "raster_size=64", "synthesis.points_per_ink=1500", "synthesis.iterations=10",
+            "num_items=6", "sparse.holes=2"]
+    generate(compose_config("pairs", [f"out_dir={tmp_path / 'full'}", *base]))
+    generate(compose_config("pairs", [f"out_dir={tmp_path / 'light'}", *base, "sparse.share=1.0"]))
+    generate(compose_config("pairs", [f"out_dir={tmp_path / 'empty'}", *base, "sparse.empty_share=0.5"]))
+    full, light, empty = (load_pairs(tmp_path / name) for name in ("full", "light", "empty"))
+    full_ink = {int(i): 1 - t[..., 0].mean() / 255 for i, t in zip(full.item, full.target, strict=True)}
+    for i, t in zip(light.item, light.target, strict=True):  # same maps, scaled down (0.4 at most, 8-bit rounding)
+        assert 1 - t[..., 0].mean() / 255 <= 0.4 * full_ink[int(i)] + 0.01
+    emptied = [k for k, meta in enumerate(empty.meta) if meta["method"] == "empty"]
+    assert 1 <= len(emptied) <= 5
+    for k in emptied:
+        assert len(empty.points_of(k)) == 0 and not empty.raster[k].any() and np.all(empty.target[k][..., 0] == 255)
+    with pytest.raises(PatternshopError, match="sparse.scale"):
+        PairSettings.from_config(compose_config("pairs", ["sparse.share=0.5", "sparse.scale=[0.5,0.1]"]))
