@@ -34,6 +34,8 @@ if TYPE_CHECKING:
     from synthesis.fields import Denominators, MapFields
 
 _JIT = {"parallel": True, "cache": True, "fastmath": False}
+# the two per-iteration kernels may reorder and fuse float32 arithmetic (SIMD): results agree with the reference to ~1e-6
+_HOT = {"parallel": True, "cache": True, "fastmath": {"contract", "reassoc", "arcp"}}
 
 
 @numba.njit(cache=True)
@@ -43,9 +45,20 @@ def _target_at(target, j, r0, r1, c0, c1, tx, ty):  # pragma: no cover - jitted
                       + (target[r1, c0, j] * (1.0 - tx) + target[r1, c1, j] * tx) * ty)
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, inline="always")
+def _offsets_to(xy, neighbours, lo, hi, c, dxs, dys, ds):  # pragma: no cover - jitted
+    """Offsets and distances from point c to its neighbours lo:hi, into dxs, dys, ds (a separate loop: it vectorises)."""
+    xc, yc = xy[c, 0], xy[c, 1]
+    for p in range(lo, hi):
+        b = neighbours[p]
+        dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
+        dxs[p - lo], dys[p - lo] = dx, dy
+        ds[p - lo] = math.sqrt(dx * dx + dy * dy)
+
+
+@numba.njit(**_HOT)
 def _window_sums_of_counts(xy, offsets, neighbours, guide, spacing, inv_width, target, side_px, anchor, exact, slot,
-                           denominators, slope_x, slope_y, member_offsets, member_window, member_weight,
+                           denominators, slope_x, slope_y, member_offsets, member_window, member_weight, longest,
                            sums):  # pragma: no cover - jitted
     threads, _, m = sums.shape
     n = len(xy)
@@ -53,23 +66,26 @@ def _window_sums_of_counts(xy, offsets, neighbours, guide, spacing, inv_width, t
     for t in numba.prange(threads):
         acc = sums[t]
         acc[:] = 0.0
-        row = np.empty(m)
+        row = np.empty(m, np.float32)
+        dxs, dys, ds = np.empty(longest), np.empty(longest), np.empty(longest)
         for c in range(t * n // threads, (t + 1) * n // threads):
             r0, r1, c0, c1, tx, ty = corners(height, width, anchor[c, 0] * side_px - 0.5, anchor[c, 1] * side_px - 0.5)
+            w00, w01 = np.float32((1.0 - tx) * (1.0 - ty)), np.float32(tx * (1.0 - ty))
+            w10, w11 = np.float32((1.0 - tx) * ty), np.float32(tx * ty)
             k = slot[c]
+            denominator = exact if k < 0 else denominators[k]
             for j in range(m):  # minus the expected counts g D at the anchor ...
-                g = _target_at(target, j, r0, r1, c0, c1, tx, ty)
-                row[j] = -g * (exact[j] if k < 0 else denominators[k, j])
+                g = w00 * target[r0, c0, j] + w01 * target[r0, c1, j] + w10 * target[r1, c0, j] + w11 * target[r1, c1, j]
+                row[j] = -g * denominator[j]
             if k >= 0:  # ... moved along their slope near borders and edges
                 mx, my = xy[c, 0] - anchor[c, 0], xy[c, 1] - anchor[c, 1]
                 for j in range(m):
                     row[j] -= slope_x[k, j] * mx + slope_y[k, j] * my
             scale = inv_width / spacing[c]
-            xc, yc = xy[c, 0], xy[c, 1]
-            for p in range(offsets[c], offsets[c + 1]):  # plus the tent counts of the pairs
-                b = neighbours[p]
-                dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
-                d = math.sqrt(dx * dx + dy * dy) * scale
+            lo, hi = offsets[c], offsets[c + 1]
+            _offsets_to(xy, neighbours, lo, hi, c, dxs, dys, ds)
+            for p in range(lo, hi):  # plus the tent counts of the pairs
+                d = ds[p - lo] * scale
                 if d < m:
                     j = int(d)
                     f = d - j
@@ -106,15 +122,16 @@ def _window_slopes(sums, deviation, dead, scale, slope, loss):  # pragma: no cov
         loss[w] = penalty * scale[w]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_HOT)
 def _gradient(xy, offsets, neighbours, guide, spacing, inv_width, point_offsets, point_window, point_weight, slope,
-              slot, slope_x, slope_y, variance_force, parts):  # pragma: no cover - jitted
+              slot, slope_x, slope_y, variance_force, longest, parts):  # pragma: no cover - jitted
     threads, n, _ = parts.shape
     m = slope.shape[1]
     for t in numba.prange(threads):
         part = parts[t]
         part[:] = 0.0
-        back = np.empty(m + 1)
+        back = np.empty(m + 1, np.float32)
+        dxs, dys, ds = np.empty(longest), np.empty(longest), np.empty(longest)
         for c in range(t * n // threads, (t + 1) * n // threads):
             for j in range(m + 1):
                 back[j] = 0.0
@@ -136,11 +153,11 @@ def _gradient(xy, offsets, neighbours, guide, spacing, inv_width, point_offsets,
                 gx += variance_force[k, 0]
                 gy += variance_force[k, 1]
             scale = inv_width / spacing[c]
-            xc, yc = xy[c, 0], xy[c, 1]
-            for p in range(offsets[c], offsets[c + 1]):
+            lo, hi = offsets[c], offsets[c + 1]
+            _offsets_to(xy, neighbours, lo, hi, c, dxs, dys, ds)
+            for p in range(lo, hi):
                 b = neighbours[p]
-                dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
-                d = math.sqrt(dx * dx + dy * dy)
+                dx, dy, d = dxs[p - lo], dys[p - lo], ds[p - lo]
                 tt = d * scale
                 if tt < m and d > 0.0:
                     j = int(tt)
@@ -355,6 +372,7 @@ class FastObjective:
         self.slopes = workspace.empty("objective.slopes", (windows, m), np.float32)
         self.losses = workspace.empty("objective.losses", windows)
         self.parts = workspace.empty("objective.parts", (threads, n, 2))
+        self.longest = max(1, int(np.diff(hood.offsets).max(initial=0)))  # pairs of the best-connected point
 
     def __call__(self, xy: np.ndarray, gradient: bool = True) -> tuple[float, np.ndarray | None]:
         """Objective and gradient (n, 2) (a reused buffer when single-threaded: copy it to keep it) at xy (n, 2) float64."""
@@ -363,7 +381,7 @@ class FastObjective:
         _window_sums_of_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.target,
                                hood.side_px, hood.anchor, denominators.exact, self.slot, denominators.values,
                                self.slope_x, self.slope_y, hood.member_offsets, hood.member_window, hood.member_weight,
-                               self.sums)
+                               self.longest, self.sums)
         _window_slopes(self.sums, self.deviation, self.dead, self.scale, self.slopes, self.losses)
         loss = float(self.losses.sum())
         if len(hood.sloped):
@@ -372,5 +390,5 @@ class FastObjective:
             return loss, None
         _gradient(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width, hood.member_offsets,
                   hood.member_window, hood.member_weight, self.slopes, self.slot, self.slope_x, self.slope_y,
-                  hood.variance_force, self.parts)
+                  hood.variance_force, self.longest, self.parts)
         return loss, self.parts[0] if len(self.parts) == 1 else self.parts.sum(axis=0)
