@@ -3,7 +3,8 @@
 Every run is a child process (its peak resident memory is its own; nothing
 warm is shared): a constant map (L = 50, the ``blue`` preset) on the unit
 square, the default schedule, ``--threads`` numba threads. Reported per case:
-the synthesis wall time (``synthesize()``, imports excluded), its set-up share,
+the synthesis wall time (``synthesize()``, imports excluded) on 2 threads
+and, up to 100k points, on 1 thread, its set-up share,
 milliseconds per iteration, the peak resident memory and the final loss; the
 CLI's start-up (``patternshop synthesize`` of 1,000 points with 1 iteration,
 whole process); and the same-run wall time of scipy's ``qmc.PoissonDisk`` and
@@ -36,6 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SIZES = (10_000, 100_000, 300_000, 1_000_000)
 QUICK_SIZES = (10_000, 100_000)
 REFERENCE_SIZES = (10_000, 100_000)
+ONE_THREAD_UP_TO = 100_000
 MAP_SIDE = 256
 LLOYD_PIXELS_PER_POINT = 4  # the stippler's centroids live on its pixel grid: a few pixels per point
 
@@ -106,7 +108,8 @@ def _startup(threads: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help=f"only {', '.join(f'{n:,}' for n in QUICK_SIZES)} points")
-    parser.add_argument("--threads", type=int, default=2, help="numba threads of the syntheses (default 2)")
+    parser.add_argument("--threads", type=int, default=2, help="numba threads of the syntheses (default 2; up to 100k "
+                        "points they also run on 1 thread)")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -114,10 +117,12 @@ def main() -> None:
         print(json.dumps(_child(args.child, args.n, args.threads)))
         return
     results: dict = {"threads": args.threads, "cpus": os.cpu_count(), "map": f"constant L=50 blue preset, {MAP_SIDE}^2 px, unit square",
-                     "startup": _startup(args.threads), "synthesis": {}, "references": {}}
+                     "startup": _startup(1), "synthesis": {}, "synthesis_1_thread": {}, "references": {}}
     print(f"  start-up (CLI, 1,000 points, 1 iteration): {results['startup']['median_s']} s", flush=True)
     for n in QUICK_SIZES if args.quick else SIZES:
         results["synthesis"][str(n)] = _run("synthesis", n, args.threads)
+        if n <= ONE_THREAD_UP_TO and args.threads != 1:
+            results["synthesis_1_thread"][str(n)] = _run("synthesis", n, 1)
     for n in REFERENCE_SIZES:
         for kind in ("poisson_disk", "lloyd"):
             results["references"][f"{kind}_{n}"] = _run(kind, n, 1)

@@ -78,10 +78,10 @@ def test_synthesize_of_an_8000_px_map_is_refused_before_reading_it(tmp_path, cap
 
 
 def test_max_memory_gb_lifts_the_limit(small_map, tmp_path, capsys):
-    argv = ["synthesize", str(small_map), str(tmp_path / "o.txt"), "--points", "300000", "--iterations", "1"]
-    status, _, err = run_cli(argv + ["--max-memory-gb", "1"], capsys)
+    argv = ["synthesize", str(small_map), str(tmp_path / "o.txt"), "--points", "1000000", "--iterations", "1"]
+    status, _, err = run_cli(argv + ["--max-memory-gb", "0.5"], capsys)
     assert status == 2
-    one_line_error(err, "over the limit of 1 GB")
+    one_line_error(err, "over the limit of 0.5 GB")
 
 
 def test_preview_scale_100000_is_refused(small_map, tmp_path, capsys):
