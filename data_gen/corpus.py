@@ -17,11 +17,13 @@ files, so an interrupted build resumes where it stopped.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
 import multiprocessing
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -114,25 +116,38 @@ def build_corpus(config: CorpusConfig, cache_dir: str | os.PathLike, workers: in
     ``computed_now`` (how many exemplars this call computed rather than read).
     """
     folder = Path(cache_dir) / f"corpus-{config.key()}"
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "config.json").write_text(json.dumps(asdict(config), indent=2, default=str))
     chunks = [list(range(start, min(start + config.chunk, config.exemplars))) for start in range(0, config.exemplars, config.chunk)]
+    return cached_chunks(folder, asdict(config), functools.partial(_make_chunk, config), chunks, workers, "corpus")
+
+
+def cached_chunks(folder: Path, description: dict, make_chunk: Callable[[list], dict[str, np.ndarray]], chunks: list[list],
+                  workers: int, label: str) -> dict[str, np.ndarray]:
+    """Concatenated results of ``make_chunk(items)`` over ``chunks``, each chunk cached as ``folder/chunk-NNNN.npz``.
+
+    Missing chunks are computed in ``workers`` spawned processes (``make_chunk``
+    must be picklable) and written atomically, so an interrupted run resumes.
+    ``description`` is written to ``folder/config.json``. The result also holds
+    ``computed_now``: how many items this call computed rather than read.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "config.json").write_text(json.dumps(description, indent=2, default=str))
     paths = [folder / f"chunk-{number:04d}.npz" for number in range(len(chunks))]
-    missing = [(path, indices) for path, indices in zip(paths, chunks) if not path.exists()]
-    done = config.exemplars - sum(len(indices) for _, indices in missing)
-    with tqdm(total=config.exemplars, initial=done, desc="corpus", unit="exemplar", smoothing=0.05) as progress:
+    missing = [(path, items) for path, items in zip(paths, chunks) if not path.exists()]
+    total = sum(len(items) for items in chunks)
+    done = total - sum(len(items) for _, items in missing)
+    with tqdm(total=total, initial=done, desc=label, unit="exemplar", smoothing=0.05) as progress:
         if missing:
             context = multiprocessing.get_context("spawn")  # no forked torch/BLAS thread state
             with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=context) as pool:
-                futures = {pool.submit(_make_chunk, config, indices): path for path, indices in missing}
+                futures = {pool.submit(make_chunk, items): (path, len(items)) for path, items in missing}
                 for future in as_completed(futures):
                     result = future.result()
-                    with atomic_path(futures[future]) as tmp:
+                    path, count = futures[future]
+                    with atomic_path(path) as tmp:
                         with open(tmp, "wb") as handle:
                             np.savez(handle, **result)
-                    progress.update(len(result["index"]))
+                    progress.update(count)
     parts = [dict(np.load(path)) for path in paths]
     corpus = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
-    corpus["computed_now"] = np.int64(config.exemplars - done)  # exemplars not taken from the cache
+    corpus["computed_now"] = np.int64(total - done)
     return corpus
-

@@ -53,51 +53,82 @@ def trustworthiness(dissimilarity: np.ndarray, layout: np.ndarray, k: int = 10) 
     return float(sk_trustworthiness(dissimilarity, layout, n_neighbors=k, metric="precomputed"))
 
 
-def orient(
-    layout: np.ndarray, anchors: dict[str, np.ndarray], hues: dict[str, float], blue_window: float = 40.0,
-    min_blue_chroma: float = 30.0,
-) -> tuple[np.ndarray, dict]:
-    """Rotate, reflect and normalise a layout into [0, 1]^2 so anchors land on their hues.
+def hue_warp(angles: np.ndarray, strength: float) -> np.ndarray:
+    """Monotone map of angles (N,) in degrees that spreads them towards a uniform distribution.
 
-    Every rotation (1 degree steps) with and without a reflection is followed
-    by a per-axis min-max normalisation to [0, 1]^2 (so the palette fills the
-    ab square even when the layout is elongated); among those that put
-    ``anchors["blue"]`` within ``blue_window`` degrees of ``hues["blue"]`` with
-    chroma >= ``min_blue_chroma``, the one with the smallest summed hue error
-    of all anchors wins (falling back to all candidates if none qualifies).
+    ``(1 - strength) * angle + strength * F(angle)``, where F is the exemplars'
+    empirical angular distribution function (linearly interpolated, scaled to
+    360 degrees) counted from the middle of the widest empty sector; strength 0
+    is the identity, 1 spreads the exemplars evenly over the hues. Order around
+    the centre is kept, so neighbours stay neighbours; distances change.
+    """
+    if strength == 0.0 or len(angles) < 2:
+        return np.asarray(angles, np.float64) % 360.0
+    ordered = np.sort(np.asarray(angles, np.float64) % 360.0)
+    gaps = np.diff(np.append(ordered, ordered[0] + 360.0))
+    widest = int(np.argmax(gaps))
+    origin = ordered[widest] + gaps[widest] / 2.0  # the cut of the distribution function
+    relative = (np.asarray(angles, np.float64) - origin) % 360.0
+    knots = np.sort(relative)
+    rank = (np.arange(len(knots)) + 0.5) / len(knots) * 360.0
+    spread = np.interp(relative, np.concatenate([[0.0], knots, [360.0]]), np.concatenate([[0.0], rank, [360.0]]))
+    return (origin + (1.0 - strength) * relative + strength * spread) % 360.0
+
+
+def orient(
+    layout: np.ndarray, anchors: dict[str, np.ndarray], hues: dict[str, float], centre: str | None = "white",
+    warp: float = 0.0, blue_window: float = 40.0, fill_quantile: float = 0.995,
+) -> tuple[np.ndarray, dict]:
+    """Place a layout in the ab square: ``centre`` at a = b = 0, the other anchors on their hues.
+
+    The layout is moved so that ``anchors[centre]`` (white noise: no correlation,
+    hence no chroma) sits at the origin (the layout's mean without a centre),
+    optionally warped in angle around it (:func:`hue_warp` with ``warp``; radii
+    are kept), then rotated in 1 degree steps, with and without a reflection:
+    among the orientations that put ``anchors["blue"]`` within ``blue_window``
+    degrees of its hue, the one with the smallest summed hue error of all
+    anchors wins (falling back to all candidates if none qualifies). One
+    scale for both axes (no per-axis stretching) brings the ``fill_quantile``
+    of the exemplars' largest |a| or |b| to 127; the few beyond are clipped
+    onto the square's border.
 
     Args:
         layout: (N, 2) MDS coordinates.
         anchors: name -> (2,) MDS coordinates of a reference pattern (needs "blue").
-        hues: name -> wanted hue angle in degrees (atan2(b, a)).
+        hues: name -> wanted hue angle in degrees (atan2(b, a)); the centre's is ignored.
 
     Returns:
-        (N, 2) latent z, and a record of the transform (matrix, reflected, offset, scale).
+        (N, 2) latent z in [0, 1], and a record of the transform.
     """
-    centre = layout.mean(axis=0)
-    names = list(hues)
-    points = np.stack([anchors[name] for name in names]) - centre
-    wanted = np.array([hues[name] for name in names])
+    origin = np.asarray(anchors[centre] if centre in anchors else layout.mean(axis=0), np.float64)
+    names = [name for name in hues if name != centre]
     blue = names.index("blue")
+    wanted = np.array([hues[name] for name in names])
     best = None
     for reflect in (False, True):
-        flip = np.diag([1.0, -1.0]) if reflect else np.eye(2)
+        flip = np.array([1.0, -1.0 if reflect else 1.0])
+        relative = (np.concatenate([layout, np.stack([anchors[name] for name in names])]) - origin) * flip
+        radius = np.linalg.norm(relative, axis=1)
+        angle = np.degrees(np.arctan2(relative[:, 1], relative[:, 0]))
+        warped = np.concatenate([hue_warp(angle[: len(layout)], warp), [0.0] * len(names)])
+        if warp:  # anchors are exemplars or near them: they follow their nearest exemplar's warp
+            nearest = np.argmin(np.linalg.norm(layout[None] - np.stack([anchors[name] for name in names])[:, None], axis=-1), axis=1)
+            warped[len(layout):] = angle[len(layout):] + ((warped[nearest] - angle[nearest] + 180.0) % 360.0 - 180.0)
+        else:
+            warped = angle
         for degrees in range(360):
-            turn = math.radians(degrees)
-            matrix = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]]) @ flip
-            moved = (layout - centre) @ matrix.T
-            low, span = moved.min(axis=0), np.ptp(moved, axis=0)
-            ab = 255.0 * ((points @ matrix.T - low) / span) - 128.0
-            hue = np.degrees(np.arctan2(ab[:, 1], ab[:, 0]))
-            error = np.abs((hue - wanted + 180.0) % 360.0 - 180.0)
-            qualifies = error[blue] <= blue_window and np.hypot(*ab[blue]) >= min_blue_chroma
-            key = (not qualifies, float(error.sum()))
+            error = np.abs((warped[len(layout):] + degrees - wanted + 180.0) % 360.0 - 180.0)
+            key = (not error[blue] <= blue_window, float(error.sum()))
             if best is None or key < best[0]:
-                best = (key, reflect, matrix, low, span)
-    _, reflected, matrix, low, span = best
-    z = ((layout - centre) @ matrix.T - low) / span
-    record = {"centre": centre.tolist(), "matrix": matrix.tolist(), "reflected": bool(reflected),
-              "offset": low.tolist(), "scale": (1.0 / span).tolist()}
+                best = (key, reflect, degrees, radius, warped)
+    _, reflected, degrees, radius, warped = best
+    turned = np.radians(warped[: len(layout)] + degrees)
+    ab = radius[: len(layout), None] * np.stack([np.cos(turned), np.sin(turned)], axis=1)
+    scale = 127.0 / np.quantile(np.abs(ab).max(axis=1), fill_quantile)
+    z = (np.clip(ab * scale, -128.0, 127.0) + 128.0) / 255.0
+    record = {"origin": origin.tolist(), "centre": centre if centre in anchors else None, "reflected": bool(reflected),
+              "rotation_degrees": degrees, "warp": warp, "scale_ab_per_unit": float(scale),
+              "clipped": int(np.sum(np.abs(ab * scale).max(axis=1) > 127.0))}
     return z, record
 
 

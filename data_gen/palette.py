@@ -1,10 +1,13 @@
 """Build the correlation palette: ``python -m data_gen.palette [key=value ...]``.
 
-Stages (SPEC §2.1, paper §4): corpus (random spectra realised as points, their
-PCFs and perceptual features; cached, resumable, parallel) -> L1
-dissimilarities -> metric MDS -> orientation (blue noise on a blue hue) ->
-IDW look-up table -> PCA-reduced features for decoding -> presets -> quality
-metrics. Writes the asset (``output``) and a provenance record beside it
+Stages (SPEC §2.1, paper §4, palette v2 of issue 13): corpus (random spectra
+realised as points, minus those whose fit stacked points; plus the parametric
+families of :mod:`data_gen.families`, from the perfect lattice to large
+clusters; PCFs and perceptual features; cached, resumable, parallel) -> L1
+dissimilarities -> metric MDS -> orientation (white noise at a = b = 0, blue
+noise on a blue hue, clusters on red, green noise on green; one scale, an
+optional hue warp chosen by the exemplars' hue spread) -> IDW look-up table ->
+PCA-reduced features for decoding -> presets -> quality metrics. Writes the asset (``output``) and a provenance record beside it
 (same name, ``.json``). Settings: ``conf/palette.yaml``; tiny variant
 ``--config-name palette_small``.
 """
@@ -20,12 +23,13 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.corpus import CorpusConfig, SpectrumRanges, build_corpus
+from data_gen.families import build_families
 from data_gen.provenance import git_commit, machine, run_config_command, utc_now, versions
 from data_gen.embedding import l1_distances, mds_layout, orient, stress1, trustworthiness
 from data_gen.palette_table import with_preset_exemplars
 from synthesis.atomic import atomic_write_text
 from synthesis.features import block_slices, scale_blocks
-from synthesis.palette import Palette, hue_chroma, latent_to_ab
+from synthesis.palette import Palette, ab_to_latent, hue_chroma, latent_to_ab
 from synthesis.pcf import pcf_radii
 
 def corpus_config(cfg: DictConfig) -> CorpusConfig:
@@ -38,6 +42,50 @@ def corpus_config(cfg: DictConfig) -> CorpusConfig:
         fit_iterations=cfg.corpus.fit_iterations, fit_learning_rate=cfg.corpus.fit_learning_rate,
         chunk=cfg.corpus.chunk, extractor=extractor,
     )
+
+
+STACKED_DISTANCE = 0.05  # r_max: a point this close to another is stacked on it
+
+
+def stacked_share(points: np.ndarray) -> np.ndarray:
+    """(N,) share of each toroidal pattern's points (N, P, 2) stacked on another (nearest neighbour < 0.05 r_max)."""
+    from synthesis.generators._torus import r_max, tree
+
+    return np.array([np.mean(tree(p).query(p, k=2)[0][:, 1] < STACKED_DISTANCE * r_max(len(p))) for p in points])
+
+
+def merged_corpus(cfg: DictConfig, config: CorpusConfig) -> tuple[dict[str, np.ndarray], dict]:
+    """GMM exemplars whose fit stacked at most ``corpus.max_stacked_share`` of their points, then the families.
+
+    Returns arrays ``points``, ``target``, ``pcf``, ``features``, ``family`` (``"gmm"`` or
+    the family's name), ``gmm_index`` (index in the GMM corpus, -1 for families) and a record.
+    """
+    corpus = build_corpus(config, cfg.cache_dir, cfg.workers)
+    stacked = stacked_share(corpus["points"])
+    keep = stacked <= cfg.corpus.max_stacked_share
+    parts = [{"points": corpus["points"][keep], "target": corpus["target"][keep], "pcf": corpus["pcf"][keep],
+              "features": corpus["features"][keep], "family": np.full(int(keep.sum()), "gmm"),
+              "gmm_index": np.flatnonzero(keep)}]
+    record = {"gmm_exemplars": config.exemplars, "gmm_dropped_stacked": int((~keep).sum()),
+              "gmm_computed_now": int(corpus["computed_now"]), "gmm_worker_seconds": round(float(corpus["seconds"].sum()), 1),
+              "gmm_fit_rms_median": round(float(np.median(corpus["fit_rms"][keep])), 4)}
+    if cfg.families.enabled:
+        families = build_families(config.points, cfg.seed, config.extractor, cfg.cache_dir, cfg.workers,
+                                  stride=cfg.families.stride)
+        parts.append({"points": families["points"], "target": families["target"], "pcf": families["pcf"],
+                      "features": families["features"], "family": families["family"],
+                      "gmm_index": np.full(len(families["points"]), -1)})
+        names, counts = np.unique(families["family"], return_counts=True)
+        record |= {"families": dict(zip(names.tolist(), counts.tolist())), "families_computed_now": int(families["computed_now"])}
+    merged = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+    return merged, record
+
+
+def largest_wedge_share(z: np.ndarray, degrees: float = 60.0) -> float:
+    """Largest share of latents z (N, 2) whose hue falls in one ``degrees``-wide wedge (1-degree steps)."""
+    ab = latent_to_ab(z)
+    hue = np.degrees(np.arctan2(ab[:, 1], ab[:, 0])) % 360.0
+    return max(float(np.mean((hue - start) % 360.0 < degrees)) for start in range(360))
 
 
 def block_weights(features: np.ndarray) -> np.ndarray:
@@ -74,7 +122,7 @@ def build(cfg: DictConfig) -> dict:
         print(f"[palette] {stage}: {timings[stage]:.1f} s", file=sys.stderr, flush=True)
 
     config = corpus_config(cfg)
-    corpus = build_corpus(config, cfg.cache_dir, cfg.workers)
+    corpus, corpus_record = merged_corpus(cfg, config)
     lap("corpus")
 
     torch.set_num_threads(max(1, cfg.workers))
@@ -88,15 +136,24 @@ def build(cfg: DictConfig) -> dict:
     mean, components, codes, explained = pca(features, cfg.embedding.pca_components, cfg.seed)
     extractor = FeatureExtractor(cfg.features.name, cfg.features.seed, cfg.features.weights)
 
-    def nearest(points: np.ndarray, periodic: bool = True) -> int:
-        code = (scale_blocks(extractor(points, (1.0, 1.0), periodic), weights) - mean) @ components.T
-        return int(np.argmin(np.sum((codes - code) ** 2, axis=1)))
-
-    preset_points = {name: generate(name, config.points, cfg.presets.seed) for name in cfg.presets.names}
-    preset_exemplar = {name: nearest(points) for name, points in preset_points.items()}
+    preset_exemplar: dict[str, int] = {}
+    for name in cfg.presets.names:  # each preset takes over its nearest exemplar not taken by another
+        code = (scale_blocks(extractor(generate(name, config.points, cfg.presets.seed), (1.0, 1.0), True), weights) - mean) @ components.T
+        distance = np.sum((codes - code) ** 2, axis=1)
+        distance[list(preset_exemplar.values())] = np.inf
+        preset_exemplar[name] = int(np.argmin(distance))
     hues = {name: float(h) for name, h in cfg.embedding.hues.items() if name in preset_exemplar}
-    anchors = {name: layout[preset_exemplar[name]] for name in hues}
-    z, transform = orient(layout, anchors, hues)
+    anchors = {name: layout[preset_exemplar[name]] for name in list(hues) + [cfg.embedding.centre] if name in preset_exemplar}
+    orientations = []
+    for warp in cfg.embedding.warps:  # the least warp that spreads the exemplars over the hues
+        z, transform = orient(layout, anchors, hues, centre=cfg.embedding.centre, warp=float(warp))
+        transform |= {"largest_wedge_share": round(largest_wedge_share(z), 3), "stress1": round(stress1(dissimilarity, z), 4),
+                      "trustworthiness": round(trustworthiness(dissimilarity, z, cfg.metrics.trust_k), 4)}
+        orientations.append((z, transform))
+        print(f"[palette] warp {warp}: {transform}", file=sys.stderr, flush=True)
+        if transform["largest_wedge_share"] <= cfg.embedding.max_wedge_share:
+            break
+    z, transform = orientations[-1]
     lap("presets and orientation")
 
     presets = {}
@@ -122,23 +179,27 @@ def build(cfg: DictConfig) -> dict:
 
     # --- quality metrics ---------------------------------------------------
     rng = np.random.default_rng([cfg.seed, 999])
-    holdout = rng.choice(config.exemplars, size=min(cfg.metrics.holdout, config.exemplars), replace=False)
+    gmm = np.flatnonzero(corpus["gmm_index"] >= 0)
+    holdout = rng.choice(gmm, size=min(cfg.metrics.holdout, len(gmm)), replace=False)
     spectrum = RadialSpectrum(config.points, config.spectrum.bins)
     errors = []
-    for index in holdout:
-        fit = fit_spectrum(corpus["target"][index], config.points, np.random.default_rng([cfg.seed, 7, int(index)]),
+    for index in holdout:  # an independent realisation of a GMM exemplar's spectrum, decoded
+        fit = fit_spectrum(corpus["target"][index], config.points, np.random.default_rng([cfg.seed, 7, int(corpus["gmm_index"][index])]),
                            config.fit_iterations, config.fit_learning_rate, spectrum)
-        errors.append(float(np.linalg.norm(z[nearest(fit.points)] - z[index])))
+        decoded = palette.locate(fit.points, periodic=True)
+        errors.append(float(np.linalg.norm(ab_to_latent([decoded.a, decoded.b]) - z[index])))
     errors = np.array(errors)
     preset_z = {name: z[index] for name, index in preset_exemplar.items()}
     separations = {f"{p}-{q}": round(float(np.linalg.norm(preset_z[p] - preset_z[q])), 3)
                    for i, p in enumerate(preset_z) for q in list(preset_z)[i + 1 :]}
     metrics = {
-        "stress1": round(stress1(dissimilarity, layout), 4),
+        "exemplars": len(z),
+        "stress1": round(stress1(dissimilarity, layout), 4),  # the MDS layout
         "trustworthiness_k": cfg.metrics.trust_k,
         "trustworthiness": round(trustworthiness(dissimilarity, layout, cfg.metrics.trust_k), 4),
-        "fit_rms_median": round(float(np.median(corpus["fit_rms"])), 4),
-        "fit_rms_p90": round(float(np.percentile(corpus["fit_rms"], 90)), 4),
+        "stress1_final": transform["stress1"],  # the palette's latents (after orientation)
+        "trustworthiness_final": transform["trustworthiness"],
+        "largest_wedge_share": transform["largest_wedge_share"],
         "pca_explained_variance": round(explained, 4),
         "decode_holdout": len(holdout),
         "decode_within_0.05": round(float(np.mean(errors <= 0.05)), 3),
@@ -153,10 +214,11 @@ def build(cfg: DictConfig) -> dict:
         "command": "python -m data_gen.palette " + " ".join(sys.argv[1:]),
         "config": OmegaConf.to_container(cfg, resolve=True),
         "corpus_key": config.key(),
-        "corpus_exemplars_computed": int(corpus["computed_now"]),  # the rest came from cache_dir
-        "corpus_worker_seconds": round(float(corpus["seconds"].sum()), 1),  # realise + measure, all exemplars
+        "corpus": corpus_record,  # *_computed_now: the rest came from cache_dir
+        "corpus_exemplars_computed": corpus_record["gmm_computed_now"] + corpus_record.get("families_computed_now", 0),
         "extractor": extractor.describe(),
         "orientation": transform,
+        "orientations_tried": [record for _, record in orientations],
         "presets": presets,
         "metrics": metrics,
         "timings_s": timings,

@@ -22,9 +22,9 @@ square unless said otherwise), and read the way ``patternshop infer`` reads it
    map's pixels whose nearest preset colour is the right one; mean L, a, b and
    the L spread.
 3. **Lattice**: on the same stationary inputs, the share of the network output's
-   L variance and a, b variance (at the raster's resolution, cropped to the
-   domain) that is the mean over each phase modulo 64 and 32 px; a map without
-   lattice has ``p^2 / pixels`` by chance (given beside).
+   L variance and a, b variance (at the raster's resolution, over the domain
+   less 64 px at its border) that is the mean over each phase modulo 64 and
+   32 px; a map without lattice has ``p^2 / pixels`` by chance (given beside).
 4. **Inventing nothing**: an empty pattern (min L, share of pixels at L >= 97);
    one point at (0.5, 0.5) (share of pixels at L >= 95, and the points
    ``synthesize`` would make of the map); Poisson points at density 0.5 in the
@@ -62,6 +62,7 @@ STIPPLE_POINTS = 25_000
 DENSITIES = (0.05, 0.2, 0.5, 1.0, 1.5)
 COUNTS = (200, 1_000, 5_000, 20_000, 50_000)
 PHASES = (64, 32)  # raster pixels: 2**levels of the U-Net and half of it
+LATTICE_MARGIN_PX = 64  # raster pixels left out at the domain's border when measuring the lattice
 FULL_INK_L = 5.0  # picture pixels at most this light count as full ink
 QUICK = {"pictures": ("camera",), "densities": (0.2, 1.5), "counts": (200, 5_000, 50_000)}
 
@@ -181,9 +182,12 @@ def phase_locked_share(channels: np.ndarray, period: int) -> float:
 
 
 def lattice(inference: Inference, domain: tuple[float, float]) -> dict:
-    """Phase-locked shares of L and a, b variance in the network's output over the domain (section 3)."""
+    """Phase-locked shares of L and a, b variance in the network's output over the domain (section 3),
+    :data:`LATTICE_MARGIN_PX` in from its border where it is large enough (border effects are not a lattice)."""
     w, h = domain
     crop = inference.output[:, : round(h * inference.pixels_per_unit), : round(w * inference.pixels_per_unit)]
+    if min(crop.shape[1:]) >= 4 * LATTICE_MARGIN_PX:
+        crop = crop[:, LATTICE_MARGIN_PX:-LATTICE_MARGIN_PX, LATTICE_MARGIN_PX:-LATTICE_MARGIN_PX]
     result = {}
     for period in PHASES:
         result[f"L_locked_{period}"] = round(phase_locked_share(crop[:1], period), 4)

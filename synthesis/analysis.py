@@ -8,7 +8,7 @@ import os
 import numpy as np
 
 from synthesis.errors import PatternshopError
-from synthesis.palette import Palette, hue_chroma
+from synthesis.palette import OUTSIDE_CORPUS, Palette, hue_chroma
 from synthesis.pcf import pcf_radii, r_max, stationary_pcf
 from synthesis.points import PointSet
 
@@ -39,9 +39,12 @@ COINCIDENT = 0.05  # in units of r_max: the generators' clustered presets have 4
 
 
 def analyze_points(points: PointSet, palette: Palette) -> dict:
-    """PCF, spectrum, decoded colour and nearest preset of a stationary pattern (JSON-ready dict).
+    """PCF, spectrum, decoded colour, its confidence and nearest preset of a stationary pattern (JSON-ready dict).
 
-    A degenerate pattern (more than :data:`DEGENERATE_SHARE` of its points within
+    ``exemplar_distance`` is how far the perceptually nearest palette exemplar
+    is, in units of the corpus's own exemplar spacing (:class:`synthesis.palette.Decoded`);
+    ``confidence`` names its band, and ``warning`` (present only then) says that
+    the pattern lies outside the corpus, its colour being a guess. A degenerate pattern (more than :data:`DEGENERATE_SHARE` of its points within
     :data:`COINCIDENT` r_max of another) is an error: any colour decoded from it
     would be a confident answer to a question it cannot answer.
     """
@@ -59,8 +62,12 @@ def analyze_points(points: PointSet, palette: Palette) -> dict:
     radii = pcf_radii()
     pcf = stationary_pcf(points.xy, points.domain, periodic=False, radii=radii)
     frequency, power = radial_spectrum(points)
-    a, b = palette.decode(points.xy, points.domain)
+    decoded = palette.locate(points.xy, points.domain)
+    a, b = decoded.a, decoded.b
     hue, chroma = hue_chroma(a, b)
+    warning = {} if decoded.confidence != "outside the corpus" else {"warning": (
+        f"the pattern lies outside the palette's corpus (nearest exemplar {decoded.exemplar_distance:.1f} exemplar spacings away, "
+        f"beyond {OUTSIDE_CORPUS:g}): its colour is the nearest guess, not a match")}
     return {
         "n": len(points),
         "domain": [w, h],
@@ -69,6 +76,9 @@ def analyze_points(points: PointSet, palette: Palette) -> dict:
         "hue": round(hue, 2),
         "chroma": round(chroma, 2),
         "nearest_preset": palette.nearest_preset(a, b),
+        "exemplar_distance": round(decoded.exemplar_distance, 3),
+        "confidence": decoded.confidence,
+        **warning,
         "r_max": r_max(len(points), w * h),
         "r": radii.round(6).tolist(),
         "pcf": pcf.round(6).tolist(),

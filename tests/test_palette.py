@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from data_gen.embedding import idw_encode, kde_locality, orient
+from data_gen.embedding import hue_warp, idw_encode, kde_locality, orient
 from synthesis.errors import PatternshopError
-from synthesis.palette import DEFAULT_PALETTE, LUT_SIZE, Palette, ab_to_latent, hue_chroma, latent_to_ab
+from synthesis.palette import DEFAULT_PALETTE, LUT_SIZE, OUTSIDE_CORPUS, Palette, ab_to_latent, hue_chroma, latent_to_ab
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -36,24 +36,48 @@ def small(tmp_path_factory: pytest.TempPathFactory) -> tuple[Palette, dict, Path
 def test_small_build_is_a_valid_asset(small):
     palette, record, _ = small
     n, m = palette.exemplar_z.shape[0], len(palette.radii)
-    assert (n, m) == (40, 52)
+    corpus = record["corpus"]
+    assert corpus["families"] and sum(corpus["families"].values()) == 27  # every 8th of the 214 family exemplars
+    assert n == 40 - corpus["gmm_dropped_stacked"] + 27 and m == 52
     assert palette.lut.shape == (LUT_SIZE, LUT_SIZE, m) and np.all(np.isfinite(palette.lut))
     assert np.all((palette.exemplar_z >= 0) & (palette.exemplar_z <= 1))
-    np.testing.assert_allclose(palette.exemplar_z.min(axis=0), 0.0, atol=1e-6)  # normalised to fill [0, 1]^2
-    np.testing.assert_allclose(palette.exemplar_z.max(axis=0), 1.0, atol=1e-6)
-    assert palette.exemplar_points.shape == (40, 256, 2)
+    assert np.abs(latent_to_ab(palette.exemplar_z)).max() >= 126.0  # one scale fills the square along its widest axis
+    assert palette.exemplar_points.shape == (n, 256, 2)
     assert set(palette.presets) == {"white", "blue", "red"}
+    white = palette.presets["white"]
+    assert (white["a"], white["b"]) == (0.0, 0.0)  # no correlation, no chroma
+    assert record["orientation"]["centre"] == "white" and record["orientations_tried"]
     assert record["extractor"]["name"] == "random-cnn"
-    for key in ("stress1", "trustworthiness", "decode_within_0.05", "fit_rms_median"):
+    for key in ("stress1", "trustworthiness", "stress1_final", "trustworthiness_final", "largest_wedge_share", "decode_within_0.05"):
         assert key in record["metrics"]
     assert record["timings_s"]["total"] < 120
 
 
 def test_decoding_an_exemplar_returns_its_coordinate(small):
     palette, _, _ = small
-    for index in range(0, 40, 5):
-        a, b = palette.decode(palette.exemplar_points[index], periodic=True)
-        np.testing.assert_allclose(ab_to_latent([a, b]), palette.exemplar_z[index], atol=1e-5)
+    for index in range(0, len(palette.codes), 5):
+        if index in {preset["exemplar"] for preset in palette.presets.values()}:
+            continue  # a preset's exemplar holds its generator's points, measured at another seed
+        decoded = palette.locate(palette.exemplar_points[index], periodic=True)
+        np.testing.assert_allclose(ab_to_latent([decoded.a, decoded.b]), palette.exemplar_z[index], atol=1e-4)
+        assert decoded.nearest_exemplar == index and decoded.exemplar_distance < 0.01 and decoded.confidence == "high"
+
+
+def test_decoding_is_continuous_between_exemplars(small):
+    palette, _, _ = small
+    first, second = np.argsort(np.linalg.norm(palette.codes - palette.codes[0], axis=1))[:2]
+    path = [palette.locate_code((1 - t) * palette.codes[first] + t * palette.codes[second]) for t in np.linspace(0, 1, 11)]
+    ab = np.array([[d.a, d.b] for d in path])
+    steps = np.linalg.norm(np.diff(ab, axis=0), axis=1)
+    jump = np.linalg.norm(latent_to_ab(palette.exemplar_z[first]) - latent_to_ab(palette.exemplar_z[second]))
+    assert steps.max() < 0.5 * jump  # no jump from one exemplar's colour to the other's
+    assert np.linalg.norm(ab[5] - latent_to_ab(palette.exemplar_z[first])) > 0.05 * jump  # halfway is in between
+
+
+def test_a_pattern_unlike_the_corpus_is_outside(small):
+    palette, _, _ = small
+    far = palette.locate_code(palette.codes.mean(axis=0) + 50 * (palette.codes.max(axis=0) - palette.codes.min(axis=0)))
+    assert far.exemplar_distance > OUTSIDE_CORPUS and far.confidence == "outside the corpus"
 
 
 def test_lut_at_an_exemplar_returns_its_pcf(small):
@@ -100,19 +124,36 @@ def test_idw_interpolates_exactly_at_exemplars():
     assert np.all((middle >= values.min(axis=0)) & (middle <= values.max(axis=0)))
 
 
-def test_orientation_puts_blue_on_its_hue_and_uses_reflection():
+def test_orientation_centres_white_puts_blue_on_its_hue_and_uses_reflection():
     rng = np.random.default_rng(1)
     layout = rng.normal(size=(50, 2)) * [3.0, 1.0]  # elongated, like real layouts
-    anchors = {"blue": layout[0], "green": layout[1], "red": layout[2]}
+    anchors = {"white": layout[3], "blue": layout[0], "green": layout[1], "red": layout[2]}
     hues = {"blue": 270.0, "green": 150.0, "red": 30.0}
-    z, record = orient(layout, anchors, hues)
-    np.testing.assert_allclose(z.min(axis=0), 0.0, atol=1e-12)
-    np.testing.assert_allclose(z.max(axis=0), 1.0, atol=1e-12)  # fills the ab square
-    hue, chroma = hue_chroma(*latent_to_ab(z[0]))
-    assert abs(hue - 270.0) <= 40.0 and chroma >= 30.0
-    mirrored, mirrored_record = orient(layout * [1, -1], {k: v * [1, -1] for k, v in anchors.items()}, hues)
+    z, record = orient(layout, anchors, hues, fill_quantile=1.0)
+    ab = latent_to_ab(z)
+    np.testing.assert_allclose(ab[3], 0.0, atol=1e-9)  # white noise has no chroma
+    assert np.abs(ab).max() == pytest.approx(127.0)  # one scale: the widest coordinate reaches the border
+    distances = np.linalg.norm(layout[:, None] - layout[None], axis=-1)
+    np.testing.assert_allclose(np.linalg.norm(ab[:, None] - ab[None], axis=-1), distances * record["scale_ab_per_unit"], atol=1e-9)
+    hue, chroma = hue_chroma(*ab[0])
+    assert abs(hue - 270.0) <= 40.0 and chroma >= 10.0
+    mirrored, mirrored_record = orient(layout * [1, -1], {k: v * [1, -1] for k, v in anchors.items()}, hues, fill_quantile=1.0)
     np.testing.assert_allclose(mirrored, z, atol=1e-9)  # the same palette, found through the reflection
     assert mirrored_record["reflected"] != record["reflected"]
+
+
+def test_hue_warp_keeps_the_order_and_spreads_the_hues():
+    rng = np.random.default_rng(2)
+    angles = np.concatenate([rng.uniform(240, 300, 80), rng.uniform(0, 360, 20)])  # 80 % in one wedge
+    np.testing.assert_allclose(hue_warp(angles, 0.0), angles % 360)
+    spread = hue_warp(angles, 1.0)
+    order = np.argsort(angles)
+    relative = (spread[order] - spread[order][0]) % 360  # still increasing once cut at the first angle
+    assert np.all(np.diff(relative) >= 0)
+    counts, _ = np.histogram(spread, bins=6, range=(0, 360))
+    assert counts.max() <= 0.25 * len(angles)
+    half = hue_warp(angles, 0.5)
+    assert np.histogram(half, bins=6, range=(0, 360))[0].max() < np.histogram(angles % 360, bins=6, range=(0, 360))[0].max()
 
 
 def test_missing_or_bad_asset_is_a_clear_error(tmp_path):
@@ -159,7 +200,7 @@ def test_cli_palette_list_picture_and_analyze(tmp_path, capsys):
 
     assert cli.main(["palette", "--list"]) == 0
     presets = json.loads(capsys.readouterr().out)
-    assert {"white", "blue", "green", "red", "step"} <= set(presets) and set(presets["blue"]) == {"a", "b"}
+    assert {"white", "blue", "green", "red", "step"} <= set(presets) and set(presets["blue"]) == {"a", "b", "hue", "chroma"}
 
     picture = tmp_path / "palette.png"
     assert cli.main(["palette", str(picture), "--grid", "4", "--cell", "48"]) == 0

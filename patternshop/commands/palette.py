@@ -21,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         help="draw the correlation palette (ab plane with example patterns), or list the presets",
         description="Draw the ab plane of the correlation palette as a grid of example patterns, each on a "
         "background of its colour, with the named presets marked, so you can pick a colour by its look. "
-        "With --list, print the presets as JSON instead: {\"blue\": {\"a\": .., \"b\": ..}, ...}.",
+        "With --list, print the presets as JSON instead: {\"blue\": {\"a\": .., \"b\": .., \"hue\": .., \"chroma\": ..}, ...}.",
     )
     palette.add_argument("output", nargs="?", help="output .png (not needed with --list)")
     palette.add_argument("--list", action="store_true", help="print the presets as JSON and exit")
@@ -57,7 +57,13 @@ def run_palette(args: argparse.Namespace) -> None:
 
     check_palette_file(args.palette)
     if args.list:
-        print(json.dumps({name: {"a": a, "b": b} for name, (a, b) in load_palette(args.palette).preset_ab().items()}, indent=2))
+        from synthesis.palette import hue_chroma
+
+        listing = {}
+        for name, (a, b) in load_palette(args.palette).preset_ab().items():
+            hue, chroma = hue_chroma(a, b)
+            listing[name] = {"a": a, "b": b, "hue": round(hue, 1), "chroma": round(chroma, 1)}
+        print(json.dumps(listing, indent=2))
         return
     if not args.output:
         raise PatternshopError("give an output .png (or --list)")
@@ -90,6 +96,12 @@ def run_analyze(args: argparse.Namespace) -> None:
     points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
     check_memory(args, analysis_bytes(len(points)), f"analysing {len(points):,} points")
     result = analyze_points(points, load_palette(args.palette))
+    if "warning" in result:
+        import warnings
+
+        from synthesis.errors import PatternshopWarning
+
+        warnings.warn(result["warning"], PatternshopWarning, stacklevel=1)
     if plot is not None:
         plot_analysis(result, plot)
     if args.json:
@@ -98,6 +110,7 @@ def run_analyze(args: argparse.Namespace) -> None:
     print(f"{args.points}: {result['n']} points, domain {result['domain'][0]:g} x {result['domain'][1]:g}")
     print(f"palette colour: a = {result['a']:.1f}, b = {result['b']:.1f} (hue {result['hue']:.0f} deg, chroma {result['chroma']:.0f})")
     print(f"nearest preset: {result['nearest_preset']}")
+    print(f"confidence: {result['confidence']} (nearest corpus exemplar {result['exemplar_distance']:.2f} exemplar spacings away)")
     print("PCF (r / r_max: g): " + ", ".join(f"{r:.2f}: {g:.2f}" for r, g in zip(result["r"][::3], result["pcf"][::3])))
     if plot is not None:
         print(f"wrote {plot}")
