@@ -3,7 +3,8 @@
 Every run is a child process (its peak resident memory is its own; nothing
 warm is shared): a constant map (L = 50, the ``blue`` preset) on the unit
 square, the default schedule, ``--threads`` numba threads. Reported per case:
-the synthesis wall time (``synthesize()``, imports excluded) on 2 threads
+the synthesis wall time (``synthesize()``, imports excluded; the median of
+3 runs up to 100k points, one run above) on 2 threads
 and, up to 100k points, on 1 thread, its set-up share,
 milliseconds per iteration, the peak resident memory and the final loss; the
 CLI's start-up (``patternshop synthesize`` of 1,000 points with 1 iteration,
@@ -80,15 +81,24 @@ def _child(kind: str, n: int, threads: int) -> dict:
 
 
 def _run(kind: str, n: int, threads: int) -> dict:
+    """The figures of the median-time run of ``repeats_for(n)`` child processes, with every run's time."""
     env = os.environ | {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": str(threads), "PYTHONPATH": str(ROOT)}
-    load_before = os.getloadavg()[0]
-    done = subprocess.run([sys.executable, __file__, "--child", kind, "--n", str(n), "--threads", str(threads)],
-                          cwd=ROOT, env=env, capture_output=True, text=True, check=True)
-    figures = json.loads(done.stdout.strip().splitlines()[-1])
-    figures |= {"load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}
-    print(f"  {kind:13s} n={n:>9,} threads={threads}: {figures['seconds']:8.2f} s, peak {figures['peak_gb']:.2f} GB"
-          f" (load {figures['load_before']:.1f} -> {figures['load_after']:.1f})", flush=True)
+    runs = []
+    for _ in range(repeats_for(n)):
+        load_before = os.getloadavg()[0]
+        done = subprocess.run([sys.executable, __file__, "--child", kind, "--n", str(n), "--threads", str(threads)],
+                              cwd=ROOT, env=env, capture_output=True, text=True, check=True)
+        figures = json.loads(done.stdout.strip().splitlines()[-1])
+        runs.append(figures | {"load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)})
+    figures = sorted(runs, key=lambda run: run["seconds"])[len(runs) // 2] | {"runs_s": [round(run["seconds"], 3) for run in runs]}
+    print(f"  {kind:13s} n={n:>9,} threads={threads}: {figures['seconds']:8.2f} s (median of {len(runs)}), peak "
+          f"{figures['peak_gb']:.2f} GB (load {figures['load_before']:.1f} -> {figures['load_after']:.1f})", flush=True)
     return {key: round(value, 4) if isinstance(value, float) else value for key, value in figures.items()}
+
+
+def repeats_for(n: int) -> int:
+    """Runs per case: the median of 3 up to 100k points, one run above (minutes each)."""
+    return 3 if n <= ONE_THREAD_UP_TO else 1
 
 
 def _startup(threads: int) -> dict:

@@ -21,6 +21,23 @@ def l1_distances(features: np.ndarray, chunk: int = 64) -> np.ndarray:
     return (out + out.T) / 2.0
 
 
+def compressed(dissimilarity: np.ndarray, fraction: float | None) -> np.ndarray:
+    """(N, N) ``log(1 + D / s)`` with ``s = fraction * median(D)`` (off-diagonal); ``None`` returns D unchanged.
+
+    The L1 distances between Gram features span three orders of magnitude: a
+    strongly clustered pattern is 50 times farther from white noise than a
+    lattice is from a Poisson-disk pattern. Embedded as they are, a few
+    extreme clusters set the scale and every non-clustered pattern lands
+    within a few ab units of the centre. The logarithm keeps the order of the
+    distances (so neighbourhoods, and trustworthiness, are unchanged) and
+    measures large ones by their ratio rather than their difference.
+    """
+    if fraction is None:
+        return dissimilarity
+    scale = fraction * float(np.median(dissimilarity[np.triu_indices(len(dissimilarity), 1)]))
+    return np.log1p(dissimilarity / scale)
+
+
 def mds_layout(dissimilarity: np.ndarray, seed: int, inits: int = 4, max_iter: int = 300) -> np.ndarray:
     """(N, 2) metric MDS (SMACOF) layout of a precomputed dissimilarity matrix.
 
@@ -75,9 +92,29 @@ def hue_warp(angles: np.ndarray, strength: float) -> np.ndarray:
     return (origin + (1.0 - strength) * relative + strength * spread) % 360.0
 
 
+def pin_hues(angles: np.ndarray, anchor_angles: np.ndarray, wanted: np.ndarray) -> np.ndarray | None:
+    """Piecewise-linear monotone map of angles (N,) in degrees taking ``anchor_angles`` (K,) exactly to ``wanted`` (K,).
+
+    Each sector between two anchors (in cyclic order) is stretched or squeezed
+    linearly onto the sector between their wanted hues, so order around the
+    centre is kept. Returns None when the anchors' cyclic order differs from
+    their wanted hues' (no monotone map exists).
+    """
+    order = np.argsort(np.asarray(anchor_angles) % 360.0)
+    start, target = np.asarray(anchor_angles, np.float64)[order] % 360.0, np.asarray(wanted, np.float64)[order] % 360.0
+    source_gaps = (np.roll(start, -1) - start) % 360.0
+    target_gaps = (np.roll(target, -1) - target) % 360.0
+    if len(start) < 2 or not np.isclose(target_gaps.sum(), 360.0) or np.any(source_gaps <= 0):
+        return None
+    relative = (np.asarray(angles, np.float64)[:, None] - start[None]) % 360.0  # (N, K) forward offset from each anchor
+    sector = np.argmin(np.where(relative < source_gaps[None], relative, np.inf), axis=1)
+    offset = relative[np.arange(len(relative)), sector]
+    return (target[sector] + offset / source_gaps[sector] * target_gaps[sector]) % 360.0
+
+
 def orient(
     layout: np.ndarray, anchors: dict[str, np.ndarray], hues: dict[str, float], centre: str | None = "white",
-    warp: float = 0.0, blue_window: float = 40.0, fill_quantile: float = 0.995,
+    warp: float = 0.0, blue_window: float = 40.0, fill_quantile: float = 0.995, pin: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """Place a layout in the ab square: ``centre`` at a = b = 0, the other anchors on their hues.
 
@@ -87,7 +124,9 @@ def orient(
     are kept), then rotated in 1 degree steps, with and without a reflection:
     among the orientations that put ``anchors["blue"]`` within ``blue_window``
     degrees of its hue, the one with the smallest summed hue error of all
-    anchors wins (falling back to all candidates if none qualifies). One
+    anchors wins (falling back to all candidates if none qualifies). With
+    ``pin``, a piecewise-linear angular map (:func:`pin_hues`) then puts every
+    anchor exactly on its hue (when their cyclic order allows it). One
     scale for both axes (no per-axis stretching) brings the ``fill_quantile``
     of the exemplars' largest |a| or |b| to 127; the few beyond are clipped
     onto the square's border.
@@ -122,12 +161,14 @@ def orient(
             if best is None or key < best[0]:
                 best = (key, reflect, degrees, radius, warped)
     _, reflected, degrees, radius, warped = best
-    turned = np.radians(warped[: len(layout)] + degrees)
+    final = warped[: len(layout)] + degrees
+    pinned = pin_hues(final, warped[len(layout):] + degrees, wanted) if pin else None
+    turned = np.radians(final if pinned is None else pinned)
     ab = radius[: len(layout), None] * np.stack([np.cos(turned), np.sin(turned)], axis=1)
     scale = 127.0 / np.quantile(np.abs(ab).max(axis=1), fill_quantile)
     z = (np.clip(ab * scale, -128.0, 127.0) + 128.0) / 255.0
     record = {"origin": origin.tolist(), "centre": centre if centre in anchors else None, "reflected": bool(reflected),
-              "rotation_degrees": degrees, "warp": warp, "scale_ab_per_unit": float(scale),
+              "rotation_degrees": degrees, "warp": warp, "hues_pinned": pinned is not None, "scale_ab_per_unit": float(scale),
               "clipped": int(np.sum(np.abs(ab * scale).max(axis=1) > 127.0))}
     return z, record
 

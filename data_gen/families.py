@@ -16,15 +16,21 @@ jittered grid         share of the cell (``jitter``)                          0.
 step                  (``step``)                                              -
 Poisson               (``white``)                                             -
 green noise           points per cluster x spread (``green``)                 3 - 6 x 0.15 - 0.4
-Thomas clusters       points per cluster x spread (``red``)                   4 - 32 x 0.15 - 1 spacings
-Matérn clusters       points per cluster x disk radius (``matern``)           4 - 32 x 0.3 - 2 spacings
+Thomas clusters       points per cluster x spread (``red``)                   3 - 32 x 0.15 - 1 spacings
+Matérn clusters       points per cluster x disk radius (``matern``)           3 - 32 x 0.3 - 2 spacings
 ====================  =====================================================  =========
 
-Every setting is realised with a few seeds (exemplar i uses
-``default_rng([seed, FAMILY_STREAM, i])``) at the corpus point count on the
-torus; its PCF and perceptual features are measured as for the GMM corpus and
-cached in chunks (resumable, independent of chunking and workers). The
-exemplar's "target" spectrum is its own measured radial spectrum.
+Every setting is one exemplar standing for its process, not for one draw of it:
+its PCF, radial spectrum and perceptual features are the means over
+:data:`REALISATIONS` independent toroidal realisations at the corpus point count
+(realisation r of exemplar i uses ``default_rng([seed, FAMILY_STREAM, i, r])``);
+its stored points are the first realisation. A clustered pattern of 1,024 points
+has only 30-250 clusters, so one realisation's Gram features scatter as far as
+the features of neighbouring settings: exemplars of single draws put two seeds
+of one Matérn setting 60 ab units apart in palette v2's first layout, and a
+Thomas pattern decoded anywhere between them. Results are cached in chunks
+(resumable, independent of chunking and workers). The exemplar's "target"
+spectrum is its measured mean radial spectrum.
 """
 
 from __future__ import annotations
@@ -39,12 +45,13 @@ from pathlib import Path
 import numpy as np
 
 FAMILY_STREAM = 13  # keeps the families' random streams apart from the GMM exemplars'
-FORMAT = 1  # chunk contents; bump to invalidate cached families
+FORMAT = 2  # chunk contents; bump to invalidate cached families (2: means over REALISATIONS)
+REALISATIONS = 4  # independent draws averaged into one exemplar
 
 
 @dataclass(frozen=True)
 class FamilyExemplar:
-    """One corpus exemplar to generate: ``generator(n, rng, **parameters)`` with seed number ``replica``."""
+    """One corpus exemplar: the process ``generator(n, rng, **parameters)``; ``replica`` numbers repeated settings."""
 
     family: str
     generator: str
@@ -57,8 +64,8 @@ class FamilyExemplar:
         return f"{self.family}({arguments})#{self.replica}"
 
 
-def _sweep(family: str, generator: str, replicas: int, **grids: list) -> list[FamilyExemplar]:
-    """Every combination of the parameter grids, ``replicas`` seeds each."""
+def _sweep(family: str, generator: str, replicas: int = 1, **grids: list) -> list[FamilyExemplar]:
+    """Every combination of the parameter grids, ``replicas`` exemplars each."""
     keys = list(grids)
     return [FamilyExemplar(family, generator, tuple(zip(keys, values)), replica)
             for values in itertools.product(*grids.values()) for replica in range(replicas)]
@@ -67,25 +74,26 @@ def _sweep(family: str, generator: str, replicas: int, **grids: list) -> list[Fa
 def family_exemplars() -> list[FamilyExemplar]:
     """The parametric part of the corpus (see the module docstring), in a fixed order."""
     jitters = [0.0, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4]
+    sizes = [3, 4, 6, 8, 12, 16, 24, 32]
     return [
-        *_sweep("square lattice", "lattice", 2, hexagonal=[False], jitter=jitters),
-        *_sweep("hexagonal lattice", "lattice", 2, hexagonal=[True], jitter=jitters),
-        *_sweep("lloyd", "lloyd", 2, iterations=[1, 2, 3, 5, 8, 12, 20, 30, 50, 80]),
-        *_sweep("poisson-disk", "blue", 2, relative_radius=[0.2, 0.3, 0.4, 0.5, 0.6, 0.65, 0.7, 0.74, 0.76]),
-        *_sweep("jittered grid", "jitter", 2, strength=[0.25, 0.5, 0.75, 0.9, 1.0]),
-        *_sweep("step", "step", 4),
-        *_sweep("poisson", "white", 8),
-        *_sweep("green", "green", 2, points_per_cluster=[3, 4, 6], cluster_std=[0.15, 0.25, 0.4]),
-        *_sweep("thomas", "red", 3, points_per_cluster=[4, 8, 16, 32], cluster_std=[0.15, 0.3, 0.6, 1.0]),
-        *_sweep("matern", "matern", 3, points_per_cluster=[4, 8, 16, 32], radius=[0.3, 0.6, 1.2, 2.0]),
+        *_sweep("square lattice", "lattice", hexagonal=[False], jitter=jitters),
+        *_sweep("hexagonal lattice", "lattice", hexagonal=[True], jitter=jitters),
+        *_sweep("lloyd", "lloyd", iterations=[1, 2, 3, 5, 8, 12, 20, 30, 50, 80]),
+        *_sweep("poisson-disk", "blue", relative_radius=[0.2, 0.3, 0.4, 0.5, 0.55, 0.6, 0.65, 0.7, 0.74, 0.76]),
+        *_sweep("jittered grid", "jitter", strength=[0.25, 0.5, 0.75, 0.9, 1.0]),
+        *_sweep("step", "step"),
+        *_sweep("poisson", "white", 2),
+        *_sweep("green", "green", points_per_cluster=[3, 4, 6], cluster_std=[0.15, 0.25, 0.4]),
+        *_sweep("thomas", "red", points_per_cluster=sizes, cluster_std=[0.15, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0]),
+        *_sweep("matern", "matern", points_per_cluster=sizes, radius=[0.3, 0.45, 0.6, 0.9, 1.2, 1.6, 2.0]),
     ]
 
 
-def realise(exemplar: FamilyExemplar, points: int, seed: int, index: int) -> np.ndarray:
-    """(points, 2) toroidal realisation of exemplar number ``index`` of the list."""
+def realise(exemplar: FamilyExemplar, points: int, seed: int, index: int, realisation: int = 0) -> np.ndarray:
+    """(points, 2) toroidal realisation number ``realisation`` of exemplar number ``index`` of the list."""
     from synthesis.generators import GENERATORS
 
-    rng = np.random.default_rng([seed, FAMILY_STREAM, index])
+    rng = np.random.default_rng([seed, FAMILY_STREAM, index, realisation])
     return GENERATORS[exemplar.generator](points, rng, **dict(exemplar.parameters))
 
 
@@ -102,12 +110,12 @@ def _make_chunk(points: int, seed: int, extractor: tuple, indexed: list[tuple[in
     spectrum = RadialSpectrum(points)
     out: dict[str, list] = {"index": [], "points": [], "target": [], "pcf": [], "features": []}
     for index, exemplar in indexed:
-        xy = realise(exemplar, points, seed, index)
+        draws = [realise(exemplar, points, seed, index, r) for r in range(REALISATIONS)]
         out["index"].append(index)
-        out["points"].append(xy)
-        out["target"].append(spectrum(xy))
-        out["pcf"].append(stationary_pcf(xy, periodic=True))
-        out["features"].append(features(xy, (1.0, 1.0), periodic=True))
+        out["points"].append(draws[0])
+        out["target"].append(np.mean([spectrum(xy) for xy in draws], axis=0))
+        out["pcf"].append(np.mean([stationary_pcf(xy, periodic=True) for xy in draws], axis=0))
+        out["features"].append(np.mean([features(xy, (1.0, 1.0), periodic=True) for xy in draws], axis=0))
     return {name: np.asarray(values) for name, values in out.items()}
 
 
@@ -119,7 +127,7 @@ def build_families(points: int, seed: int, extractor: tuple, cache_dir: str | Pa
     from data_gen.corpus import cached_chunks
 
     exemplars = family_exemplars()[::stride]
-    description = {"format": FORMAT, "points": points, "seed": seed, "extractor": extractor,
+    description = {"format": FORMAT, "realisations": REALISATIONS, "points": points, "seed": seed, "extractor": extractor,
                    "exemplars": [exemplar.label() for exemplar in exemplars]}
     key = hashlib.sha256(json.dumps(description, sort_keys=True, default=str).encode()).hexdigest()[:16]
     indexed = list(enumerate(exemplars))

@@ -25,7 +25,7 @@ from omegaconf import DictConfig, OmegaConf
 from data_gen.corpus import CorpusConfig, SpectrumRanges, build_corpus
 from data_gen.families import build_families
 from data_gen.provenance import git_commit, machine, run_config_command, utc_now, versions
-from data_gen.embedding import l1_distances, mds_layout, orient, stress1, trustworthiness
+from data_gen.embedding import compressed, l1_distances, mds_layout, orient, stress1, trustworthiness
 from data_gen.palette_table import with_preset_exemplars
 from synthesis.atomic import atomic_write_text
 from synthesis.features import block_slices, scale_blocks
@@ -58,13 +58,15 @@ def merged_corpus(cfg: DictConfig, config: CorpusConfig) -> tuple[dict[str, np.n
     """GMM exemplars whose fit stacked at most ``corpus.max_stacked_share`` of their points, then the families.
 
     Returns arrays ``points``, ``target``, ``pcf``, ``features``, ``family`` (``"gmm"`` or
-    the family's name), ``gmm_index`` (index in the GMM corpus, -1 for families) and a record.
+    the family's name), ``label`` (``gmm#INDEX`` or :meth:`data_gen.families.FamilyExemplar.label`),
+    ``gmm_index`` (index in the GMM corpus, -1 for families) and a record.
     """
     corpus = build_corpus(config, cfg.cache_dir, cfg.workers)
     stacked = stacked_share(corpus["points"])
     keep = stacked <= cfg.corpus.max_stacked_share
     parts = [{"points": corpus["points"][keep], "target": corpus["target"][keep], "pcf": corpus["pcf"][keep],
               "features": corpus["features"][keep], "family": np.full(int(keep.sum()), "gmm"),
+              "label": np.array([f"gmm#{index}" for index in np.flatnonzero(keep)]),
               "gmm_index": np.flatnonzero(keep)}]
     record = {"gmm_exemplars": config.exemplars, "gmm_dropped_stacked": int((~keep).sum()),
               "gmm_computed_now": int(corpus["computed_now"]), "gmm_worker_seconds": round(float(corpus["seconds"].sum()), 1),
@@ -73,7 +75,7 @@ def merged_corpus(cfg: DictConfig, config: CorpusConfig) -> tuple[dict[str, np.n
         families = build_families(config.points, cfg.seed, config.extractor, cfg.cache_dir, cfg.workers,
                                   stride=cfg.families.stride)
         parts.append({"points": families["points"], "target": families["target"], "pcf": families["pcf"],
-                      "features": families["features"], "family": families["family"],
+                      "features": families["features"], "family": families["family"], "label": families["label"],
                       "gmm_index": np.full(len(families["points"]), -1)})
         names, counts = np.unique(families["family"], return_counts=True)
         record |= {"families": dict(zip(names.tolist(), counts.tolist())), "families_computed_now": int(families["computed_now"])}
@@ -128,7 +130,7 @@ def build(cfg: DictConfig) -> dict:
     torch.set_num_threads(max(1, cfg.workers))
     weights = block_weights(corpus["features"])
     features = scale_blocks(corpus["features"], weights)
-    dissimilarity = l1_distances(features)
+    dissimilarity = compressed(l1_distances(features), cfg.embedding.compression)  # what the layout embeds
     lap("dissimilarities")
     layout = mds_layout(dissimilarity, cfg.seed, cfg.embedding.mds_inits, cfg.embedding.mds_max_iter)
     lap("mds")
@@ -144,9 +146,14 @@ def build(cfg: DictConfig) -> dict:
         preset_exemplar[name] = int(np.argmin(distance))
     hues = {name: float(h) for name, h in cfg.embedding.hues.items() if name in preset_exemplar}
     anchors = {name: layout[preset_exemplar[name]] for name in list(hues) + [cfg.embedding.centre] if name in preset_exemplar}
+    labels = corpus["label"].tolist()
+    for pin in cfg.embedding.pins:  # family exemplars pinned to hues of their own (present in the corpus only)
+        if pin.exemplar in labels:
+            anchors[pin.exemplar], hues[pin.exemplar] = layout[labels.index(pin.exemplar)], float(pin.hue)
     orientations = []
     for warp in cfg.embedding.warps:  # the least warp that spreads the exemplars over the hues
-        z, transform = orient(layout, anchors, hues, centre=cfg.embedding.centre, warp=float(warp))
+        z, transform = orient(layout, anchors, hues, centre=cfg.embedding.centre, warp=float(warp),
+                              fill_quantile=cfg.embedding.fill_quantile, pin=cfg.embedding.pin_hues)
         transform |= {"largest_wedge_share": round(largest_wedge_share(z), 3), "stress1": round(stress1(dissimilarity, z), 4),
                       "trustworthiness": round(trustworthiness(dissimilarity, z, cfg.metrics.trust_k), 4)}
         orientations.append((z, transform))
@@ -194,6 +201,7 @@ def build(cfg: DictConfig) -> dict:
                    for i, p in enumerate(preset_z) for q in list(preset_z)[i + 1 :]}
     metrics = {
         "exemplars": len(z),
+        "dissimilarity": "L1" if cfg.embedding.compression is None else f"log(1 + L1 / ({cfg.embedding.compression} median))",
         "stress1": round(stress1(dissimilarity, layout), 4),  # the MDS layout
         "trustworthiness_k": cfg.metrics.trust_k,
         "trustworthiness": round(trustworthiness(dissimilarity, layout, cfg.metrics.trust_k), 4),

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from data_gen.embedding import hue_warp, idw_encode, kde_locality, orient
+from data_gen.embedding import compressed, hue_warp, idw_encode, kde_locality, orient, pin_hues, trustworthiness
 from synthesis.errors import PatternshopError
 from synthesis.palette import DEFAULT_PALETTE, LUT_SIZE, OUTSIDE_CORPUS, Palette, ab_to_latent, hue_chroma, latent_to_ab
 
@@ -37,8 +37,8 @@ def test_small_build_is_a_valid_asset(small):
     palette, record, _ = small
     n, m = palette.exemplar_z.shape[0], len(palette.radii)
     corpus = record["corpus"]
-    assert corpus["families"] and sum(corpus["families"].values()) == 27  # every 8th of the 214 family exemplars
-    assert n == 40 - corpus["gmm_dropped_stacked"] + 27 and m == 52
+    assert corpus["families"] and sum(corpus["families"].values()) == 22  # every 8th of the 169 family exemplars
+    assert n == 40 - corpus["gmm_dropped_stacked"] + 22 and m == 52
     assert palette.lut.shape == (LUT_SIZE, LUT_SIZE, m) and np.all(np.isfinite(palette.lut))
     assert np.all((palette.exemplar_z >= 0) & (palette.exemplar_z <= 1))
     assert np.abs(latent_to_ab(palette.exemplar_z)).max() >= 126.0  # one scale fills the square along its widest axis
@@ -54,8 +54,9 @@ def test_small_build_is_a_valid_asset(small):
 
 
 def test_decoding_an_exemplar_returns_its_coordinate(small):
-    palette, _, _ = small
-    for index in range(0, len(palette.codes), 5):
+    palette, record, _ = small
+    gmm = record["corpus"]["gmm_exemplars"] - record["corpus"]["gmm_dropped_stacked"]  # they come first
+    for index in range(0, gmm, 3):  # (a family exemplar's features are the mean over several realisations, not its points')
         if index in {preset["exemplar"] for preset in palette.presets.values()}:
             continue  # a preset's exemplar holds its generator's points, measured at another seed
         decoded = palette.locate(palette.exemplar_points[index], periodic=True)
@@ -156,6 +157,31 @@ def test_hue_warp_keeps_the_order_and_spreads_the_hues():
     assert np.histogram(half, bins=6, range=(0, 360))[0].max() < np.histogram(angles % 360, bins=6, range=(0, 360))[0].max()
 
 
+def test_pin_hues_puts_anchors_on_their_hues_and_keeps_the_order():
+    anchors, wanted = np.array([200.0, 250.0, 330.0]), np.array([30.0, 150.0, 270.0])
+    np.testing.assert_allclose(pin_hues(anchors, anchors, wanted), wanted)
+    angles = np.linspace(0, 359, 360)
+    pinned = pin_hues(angles, anchors, wanted)
+    start = int(np.argmin((angles - anchors[0]) % 360))  # walk once round the circle from the first anchor
+    walk = np.roll(pinned, -start)
+    assert np.all(np.diff((walk - walk[0]) % 360) > 0)
+    np.testing.assert_allclose(pin_hues(np.array([225.0]), anchors, wanted), [90.0])  # halfway between two anchors
+    assert pin_hues(angles, anchors, wanted[::-1]) is None  # the opposite cyclic order has no monotone map
+
+
+def test_compression_keeps_neighbourhoods_and_shrinks_the_tail():
+    rng = np.random.default_rng(0)
+    points = np.concatenate([rng.normal(0, 1, (60, 3)), rng.normal(0, 1, (5, 3)) * 50 + 500])  # a far, spread-out group
+    distances = np.abs(points[:, None] - points[None]).sum(-1)
+    squeezed = compressed(distances, 0.05)
+    assert compressed(distances, None) is distances
+    upper = np.triu_indices(len(points), 1)
+    assert np.all(np.argsort(squeezed[upper], kind="stable") == np.argsort(distances[upper], kind="stable"))  # same order
+    ratio = lambda d: d[upper].max() / np.median(d[upper])  # noqa: E731
+    assert ratio(squeezed) < ratio(distances) / 10
+    assert trustworthiness(squeezed, points[:, :2]) == pytest.approx(trustworthiness(distances, points[:, :2]))
+
+
 def test_missing_or_bad_asset_is_a_clear_error(tmp_path):
     with pytest.raises(PatternshopError, match="palette not found"):
         Palette.load(tmp_path / "none.npz")
@@ -175,9 +201,11 @@ def test_shipped_asset_shapes_ranges_and_provenance():
     assert DEFAULT_PALETTE.stat().st_size <= 20 * 2**20
     assert palette.lut.shape == (256, 256, 52) and np.all(np.isfinite(palette.lut))
     assert palette.lut.min() >= 0.0 and 0.5 < palette.lut[..., palette.radii >= 0.5].mean() < 1.5  # the first radii hold few pairs
-    assert palette.exemplar_z.shape == (1000, 2) and palette.exemplar_points.shape == (1000, 1024, 2)
-    assert {"white", "blue", "green", "red", "step"} <= set(palette.presets)
     record = json.loads(DEFAULT_PALETTE.with_suffix(".json").read_text())
+    n = record["metrics"]["exemplars"]
+    assert n >= 500 and palette.exemplar_z.shape == (n, 2) and palette.exemplar_points.shape == (n, 1024, 2)
+    assert set(record["corpus"]["families"]) >= {"square lattice", "hexagonal lattice", "lloyd", "poisson-disk", "thomas", "matern"}
+    assert {"white", "blue", "green", "red", "step", "lattice", "perturbed", "lloyd", "jitter", "matern"} <= set(palette.presets)
     assert record["extractor"]["name"] == palette.extractor["name"]
     for key in ("command", "config", "metrics", "timings_s", "versions", "commit", "built"):
         assert key in record
@@ -190,6 +218,18 @@ def test_shipped_blue_noise_is_blue():
     palette = Palette.load()
     hue, chroma = hue_chroma(*palette.decode(generate("blue", 4096, seed=5)))
     assert 235.0 <= hue <= 315.0 and chroma >= 30.0
+
+
+@shipped
+def test_shipped_palette_centres_white_and_separates_regular_patterns():
+    from synthesis.generators import generate
+
+    palette = Palette.load()
+    ab = {name: np.array(palette.decode(generate(name, 4096, seed=5))) for name in ("white", "blue", "lloyd", "lattice", "red")}
+    assert hue_chroma(*ab["white"])[1] <= 15.0  # no correlation, (almost) no chroma
+    assert min(np.linalg.norm(ab[p] - ab[q]) for p, q in [("blue", "lloyd"), ("blue", "lattice"), ("lloyd", "lattice")]) >= 15.0
+    red_hue = hue_chroma(*ab["red"])[0]
+    assert red_hue <= 60.0 or red_hue >= 340.0  # clusters on a red hue
 
 
 @shipped
