@@ -121,8 +121,8 @@ def sharp_edges() -> dict:
         row = {}
         for guided in (True, False):
             result = synthesize(lab_map, n=n, palette=palette, seed=1, guide=guided)
-            error, _ = local_errors(lab_map, result.points.xy, n)
-            x, y = result.points.xy[:, 0], result.points.xy[:, 1]
+            error, centres = local_errors(lab_map, result.points.xy, n)  # per window of ~40 points
+            x, y = centres[:, 0], centres[:, 1]
             away = (x > 4 * spacing) & (x < w - 4 * spacing) & (y > 4 * spacing) & (y < h - 4 * spacing)
             near = (np.abs(x - w / 2) < 2 * spacing) & away
             interior = (np.abs(x - w / 2) > 4 * spacing) & away

@@ -380,8 +380,9 @@ def estimate(xy: np.ndarray, hood: Neighbourhoods, denominator: np.ndarray) -> n
 
 
 def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
-                 palette: Palette | None = None) -> tuple[np.ndarray, MapFields]:
-    """(W,) mean-over-radii |window PCF - window target| per aggregation window of a pattern (n, 2), and the fields.
+                 palette: Palette | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(W,) mean-over-radii |window PCF - window target| per aggregation window of a pattern (n, 2), and the
+    windows' centres (W, 2) (their members' weighted mean positions, map units).
 
     The map's target PCFs come from ``palette`` (default: the shipped one); ``n``
     sets the map's point spacing (default: the pattern's own count).
@@ -395,4 +396,6 @@ def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
     poisson = windows.aggregate(fields.denominator_at(points))
     observed = windows.aggregate(pair_counts_reference(points, hood)) / poisson
     target = windows.aggregate(hood.expected()) / poisson
-    return np.abs(observed - target).mean(axis=1), fields
+    sums = windows.aggregate(np.concatenate([points, np.ones((len(points), 1))], axis=1))  # (W, 3): weighted x, y, weight
+    centres = sums[:, :2] / np.maximum(sums[:, 2:], 1e-300)
+    return np.abs(observed - target).mean(axis=1), centres
