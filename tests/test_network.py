@@ -275,16 +275,15 @@ def test_resize_convolution_has_no_lattice_on_a_constant_input(upsample: str) ->
 
 
 def test_new_runs_use_resize_convolution_and_the_shipped_config_still_builds() -> None:
-    """conf/model's default is resize-convolution; the shipped model's recorded config builds its transposed net."""
+    """conf/model's default is resize-convolution, and the shipped model's recorded config builds its net (resize-convolution)."""
     from omegaconf import OmegaConf
 
     from export.runtime import OnnxModel
 
     assert compose_config("train", []).model.upsample == "nearest"
     recorded = OmegaConf.to_container(OmegaConf.load(ROOT / "patternshop_nn" / "assets" / "default.config.yaml").model)
-    assert "upsample" not in recorded
     module = Pix2PixModule(**{key: value for key, value in recorded.items() if key != "_target_"})
-    assert module.generator.upsample == "transposed"
+    assert module.generator.upsample == "nearest"
     shipped = OnnxModel().metadata["generator"]["parameters"]
     assert sum(p.numel() for p in module.generator.parameters()) == shipped
 
