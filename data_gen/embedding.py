@@ -149,12 +149,11 @@ def orient(
         relative = (np.concatenate([layout, np.stack([anchors[name] for name in names])]) - origin) * flip
         radius = np.linalg.norm(relative, axis=1)
         angle = np.degrees(np.arctan2(relative[:, 1], relative[:, 0]))
-        warped = np.concatenate([hue_warp(angle[: len(layout)], warp), [0.0] * len(names)])
+        warped = angle
         if warp:  # anchors are exemplars or near them: they follow their nearest exemplar's warp
+            warped = np.concatenate([hue_warp(angle[: len(layout)], warp), [0.0] * len(names)])
             nearest = np.argmin(np.linalg.norm(layout[None] - np.stack([anchors[name] for name in names])[:, None], axis=-1), axis=1)
             warped[len(layout):] = angle[len(layout):] + ((warped[nearest] - angle[nearest] + 180.0) % 360.0 - 180.0)
-        else:
-            warped = angle
         for degrees in range(360):
             error = np.abs((warped[len(layout):] + degrees - wanted + 180.0) % 360.0 - 180.0)
             key = (not error[blue] <= blue_window, float(error.sum()))
