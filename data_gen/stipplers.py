@@ -20,7 +20,7 @@ method             what it does                                               la
 ``lloyd``          weighted Voronoi stippling (Secord 2002), CVT by density   blue
 ``poisson_disk``   dart throwing with a radius of 0.7 local spacings (the     blue
                    spacing of the density at each candidate)
-``jitter``         a jittered grid warped by the density's inverse CDF        step
+``jitter``         a jittered grid warped by the density's inverse CDF        jitter
 ``clusters``       Thomas process: density-proportional parents, Gaussian     red
                    offspring at 0.6 local spacings
 ``floyd_steinberg``  error-diffusion dithering on a grid of about n inked     (none)
@@ -214,4 +214,4 @@ METHODS: dict[str, Method] = {
     "clusters": thomas_clusters,
     "floyd_steinberg": floyd_steinberg,
 }
-LABELS = {"random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "step", "clusters": "red"}
+LABELS = {"random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "jitter", "clusters": "red"}

@@ -143,14 +143,14 @@ def expand(lab_map: LabMap, margins: tuple[int, int, int, int], fill: tuple[floa
     return LabMap(expanded)
 
 
-def resize(lab_map: LabMap, width: int) -> LabMap:
-    """The map resampled to ``width`` pixels wide, aspect kept (height rounded, at least 1).
+def resize(lab_map: LabMap, width: int, height: int | None = None) -> LabMap:
+    """The map resampled to ``width`` pixels wide and ``height`` high (default: aspect kept, rounded, at least 1).
 
     Bilinear per channel (L, a, b), antialiased when shrinking.
     """
-    if width < 1:
-        raise PatternshopError(f"width must be at least 1 pixel, got {width}")
-    height = max(1, round(width * lab_map.height / lab_map.width))
+    if width < 1 or (height is not None and height < 1):
+        raise PatternshopError(f"width and height must be at least 1 pixel, got {width} and {height}")
+    height = height if height is not None else max(1, round(width * lab_map.height / lab_map.width))
     channels = [Image.fromarray(np.ascontiguousarray(lab_map.lab[..., c])).resize((width, height), Image.Resampling.BILINEAR)
                 for c in range(3)]
     return LabMap(np.stack([np.asarray(c, np.float32) for c in channels], axis=-1))

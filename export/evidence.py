@@ -27,6 +27,22 @@ Two measurements on the points alone, before and after the network:
    a normalised convolution (Knutsson and Westin 1993) of the well-observed
    a, b around it, widening the kernel until every such pixel has well-observed
    neighbours; L is never changed.
+3. **Zoomed correlation** (:func:`correlation_zoom`). Correlation is a
+   property of the pattern in units of its own spacing, density is not: a
+   light area read as if the pattern held ``f`` times fewer points per ink
+   shows the network the same arrangement at ``f`` times the density. Where
+   the map's density is below :data:`WORK_DENSITY` (the density range where
+   the network names the stationary processes right, ``bench/ood_*.md``), a, b
+   come from such zoomed readings, ``f`` up to :data:`MAX_ZOOM`
+   (:func:`export.runtime.infer_map`); their evidence is counted at the zoomed
+   raster's scale, so thin means thin at the best zoom.
+4. **Ink the points hold** (:func:`calibrate_density`). The pattern holds
+   ``n`` points, so the map's mean density must be ``n / points_per_ink``
+   (``synthesize``'s count): one factor over the network's ink restores it,
+   water-filled under full ink. No points, no ink: the network cannot invent
+   any. (A cap of the ink where a pixel's disc holds no point was tried and
+   dropped: a clustered pattern's voids read as light areas, the confusion of
+   clustering with density that issue 14 reports.)
 """
 
 from __future__ import annotations
@@ -49,6 +65,9 @@ MIN_EVIDENCE_POINTS = 6.0  # fewer points in it: correlation is not observable (
 EMPTY_EVIDENCE_POINTS = 0.5  # fewer: no points at all near the pixel (empty)
 FILL_SIGMAS_PX = (4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)  # normalised-convolution kernels tried, map pixels
 FILL_MIN_WEIGHT = 0.02  # mean confidence under a kernel needed to fill from it
+WORK_DENSITY = 0.4  # correlation is read where the apparent density reaches this (network reliable at 0.2-1)
+ZOOM_STEP = 4  # zoomed readings at f = 4, 16, 64: raster sides halve each time
+MAX_ZOOM = 64  # at most this zoom (a raster 8 times smaller)
 
 
 @dataclass(frozen=True)
@@ -182,3 +201,56 @@ def summarise(evidence: np.ndarray, filled: bool, fill_source: bool) -> Evidence
     empty = evidence < EMPTY_EVIDENCE_POINTS
     thin = ~empty & (evidence < MIN_EVIDENCE_POINTS)
     return EvidenceSummary(float(thin.mean()), float(empty.mean()), filled, fill_source)
+
+
+def correlation_zoom(density: np.ndarray) -> np.ndarray:
+    """(H, W) zoom ``f`` in [1, MAX_ZOOM] at which each pixel's density (H, W) in [0, 1] reads as :data:`WORK_DENSITY`."""
+    return np.clip(WORK_DENSITY / np.maximum(np.asarray(density, np.float64), WORK_DENSITY / MAX_ZOOM), 1.0, MAX_ZOOM)
+
+
+def zoom_levels(zoom: np.ndarray) -> tuple[int, ...]:
+    """The zoomed readings needed for a zoom map: 1, ZOOM_STEP, ZOOM_STEP^2 ... up to the largest zoom wanted."""
+    largest = float(np.max(zoom)) if np.size(zoom) else 1.0
+    levels = [1]
+    while levels[-1] < largest - 1e-9 and levels[-1] < MAX_ZOOM:
+        levels.append(levels[-1] * ZOOM_STEP)
+    return tuple(levels)
+
+
+def blend_zoomed(zoom: np.ndarray, levels: tuple[int, ...], readings: list[np.ndarray]) -> np.ndarray:
+    """(H, W, ...) per-pixel interpolation in log zoom between the readings (each (H, W, ...)) at ``levels``."""
+    if len(levels) == 1:
+        return readings[0]
+    position = np.clip(np.log(zoom) / math.log(ZOOM_STEP), 0.0, len(levels) - 1.0)  # 0 at zoom 1, 1 at ZOOM_STEP ...
+    lower = np.minimum(np.floor(position).astype(int), len(levels) - 2)
+    upper_weight = position - lower
+    stack = np.stack(readings)  # (levels, H, W, ...)
+    rows, cols = np.indices(zoom.shape)
+    low, high = stack[lower, rows, cols], stack[lower + 1, rows, cols]
+    weight = upper_weight.reshape(upper_weight.shape + (1,) * (stack.ndim - 3))
+    return (1.0 - weight) * low + weight * high
+
+
+def calibrate_density(density: np.ndarray, mean_density: float) -> tuple[np.ndarray, float]:
+    """((H, W) density ``min(s density, 1)``, the factor ``s``) with ``s`` making its mean ``mean_density``.
+
+    ``density`` (H, W) in [0, 1], ``mean_density`` >= 0 (the pattern's ``n / points_per_ink``). When the mean
+    cannot be reached (the mean would need more than full ink where the network put ink), full ink there.
+    A map without ink stays as it is (factor 1); ``mean_density`` 0 gives a white map (factor 0).
+    """
+    density = np.clip(np.asarray(density, np.float64), 0.0, 1.0)
+    if mean_density <= 0:
+        return np.zeros_like(density), 0.0
+    if not (density > 0).any():
+        return density, 1.0
+
+    def mean_at(factor: float) -> float:
+        return float(np.minimum(factor * density, 1.0).mean())
+
+    low, high = 0.0, 1.0
+    while mean_at(high) < mean_density and high < 1e12:
+        low, high = high, high * 4.0
+    for _ in range(60):  # bisection: the mean is continuous and non-decreasing in the factor
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if mean_at(middle) < mean_density else (low, middle)
+    return np.minimum(high * density, 1.0), high

@@ -18,6 +18,11 @@ The model's ``metadata_props`` hold, each value JSON-encoded:
   the input is made and the point count of a fully dark unit square in training;
 * ``generator``: class, levels and parameter count of the network;
 * any model-card fields the caller passes (name, dataset, description, ...).
+
+Nearest up-sampling and its convolution are exported fused
+(:func:`patternshop_nn.networks.fuse_upsampling`: the same function at 2.25
+times fewer multiply-adds); :func:`max_abs_difference` compares the exported
+graph with the unfused generator.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from torch import nn
 
 from data_gen.provenance import file_sha256, utc_now
 from export.runtime import INPUT_NAME, OUTPUT_NAME, OnnxModel
+from patternshop_nn.networks import fuse_upsampling
 from synthesis.atomic import atomic_path
 from synthesis.errors import PatternshopError
 from synthesis.palette import DEFAULT_PALETTE, FORMAT_VERSION
@@ -109,7 +115,7 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
     taken = sorted(set(metadata) & set(EXPORTER_KEYS))
     if taken:
         raise PatternshopError(f"metadata keys {taken} are set by the exporter")
-    generator = copy.deepcopy(load_generator(checkpoint_or_module)).eval()
+    generator = fuse_upsampling(copy.deepcopy(load_generator(checkpoint_or_module))).eval()
     props = {"palette_sha256": file_sha256(DEFAULT_PALETTE), "palette_format": FORMAT_VERSION, **metadata,
              "patternshop_format": FORMAT, "patternshop_version": package_version(), "exported": utc_now(),
              "raster_function": RASTER_FUNCTION, "raster_size": RASTER_SIZE,

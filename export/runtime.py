@@ -22,9 +22,13 @@
    1-2 - 128) and resampled to the requested width (default: 256 px on the
    long side, the training maps' resolution).
 
-:func:`infer_map` is what ``infer`` runs: the same, with the scale chosen from
-the pattern's own local density unless given, and a, b filled from the
-surroundings where too few points show correlation (:mod:`export.evidence`).
+:func:`infer_map` is what ``infer`` runs (:mod:`export.evidence`): the same
+reading, with the scale chosen from the pattern's own local density unless
+given; the ink scaled so that the map holds the pattern's point count; the
+correlation of light areas read again at a zoom (as if the pattern held 4, 16
+or 64 times fewer points per ink, so the network sees them at a density it
+reads correlation at); and a, b filled from the surroundings where even then
+too few points show correlation.
 """
 
 from __future__ import annotations
@@ -40,7 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from export.edits import resize
-from export.evidence import EvidenceSummary, ScaleChoice, choose_points_per_ink, fill_thin_correlation, local_evidence, summarise
+from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
+                             fill_thin_correlation, local_evidence, summarise, zoom_levels)
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.points import PointSet
@@ -172,21 +177,24 @@ def saturation_warning(count: int, points_per_ink: float) -> str | None:
 
 def points_to_map(points: PointSet, model: OnnxModel, width: int | None = None,
                   points_per_ink: float = POINTS_PER_INK) -> LabMap:
-    """The network's map of a point set read at ``points_per_ink`` (see the module docstring), a, b unfilled.
+    """The network's map of a point set read at ``points_per_ink`` (see the module docstring), L and a, b as it gave them.
 
     ``width`` in pixels (default: 256 on the long side); ``points_per_ink``: points of a fully dark map in the
     pattern's own scale (the synthesiser's convention). Warns (:class:`PatternshopWarning`) when the pattern
     holds more points than that.
     """
-    return infer_map(points, model, width, ScaleChoice(points_per_ink, False), fill_thin=False).lab_map
+    return infer_map(points, model, width, ScaleChoice(points_per_ink, False), fill_thin=False, calibrate=False).lab_map
 
 
 @dataclass(frozen=True)
 class Inference:
     """What :func:`infer_map` made: the map, the scale it read the pattern at, and the correlation evidence.
 
-    ``output`` is the network's raw output (3, S, S) in [0, 1] on the padded raster, ``pixels_per_unit`` the
-    raster's pixels per unit of the domain (the domain fills its top-left ``w R`` x ``h R`` pixels).
+    ``output`` is the network's raw output (3, S, S) in [0, 1] on the padded raster of the main reading,
+    ``pixels_per_unit`` that raster's pixels per unit of the domain (the domain fills its top-left ``w R`` x
+    ``h R`` pixels). ``zooms`` are the readings made for correlation (1: the main one only), ``zoomed_share``
+    the share of the map whose a, b came from a zoomed reading, ``calibration`` the ink factor applied
+    (None: the network's L as it came).
     """
 
     lab_map: LabMap
@@ -194,13 +202,28 @@ class Inference:
     evidence: EvidenceSummary
     output: np.ndarray
     pixels_per_unit: float
+    zooms: tuple[int, ...] = (1,)
+    zoomed_share: float = 0.0
+    calibration: float | None = None
 
     def report(self) -> dict:
-        return {"width": self.lab_map.width, "height": self.lab_map.height, **self.scale.report(), **self.evidence.report()}
+        return {"width": self.lab_map.width, "height": self.lab_map.height, **self.scale.report(), **self.evidence.report(),
+                "correlation_zooms": list(self.zooms), "zoomed_share": round(self.zoomed_share, 4),
+                "ink_calibration_factor": None if self.calibration is None else round(self.calibration, 4)}
+
+
+def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shape: tuple[int, int]) -> tuple[LabMap, np.ndarray, float]:
+    """(map resampled to ``shape`` (H, W), raw output (3, S, S), pixels per unit R): one network reading at a scale."""
+    raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink)
+    output = model.predict(raster[None, None])[0]
+    lab_map = output_to_map(output, points.domain, pixels_per_unit, shape[1])
+    if lab_map.L.shape != shape:
+        lab_map = resize(lab_map, shape[1], shape[0])
+    return lab_map, output, pixels_per_unit
 
 
 def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
-              fill_thin: bool = True) -> Inference:
+              fill_thin: bool = True, calibrate: bool = True) -> Inference:
     """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
 
     Args:
@@ -210,21 +233,41 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
         scale: the pattern's scale; None chooses it (:func:`export.evidence.choose_points_per_ink`, the
             default :data:`POINTS_PER_INK` unless the pattern is denser). A given scale warns
             (:class:`PatternshopWarning`) when the pattern holds more points than a fully dark map.
-        fill_thin: replace a, b where the evidence is thin by the surrounding well-observed a, b.
+        fill_thin: read a, b of light areas at a zoom (:func:`export.evidence.correlation_zoom`) and replace
+            them where the evidence stays thin by the surrounding well-observed a, b.
+        calibrate: scale the ink to the pattern's point count (:func:`export.evidence.calibrate_density`);
+            False keeps the network's L.
     """
     scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
     if not scale.automatic:
         message = saturation_warning(len(points), scale.points_per_ink)
         if message:
             warnings.warn(message, PatternshopWarning, stacklevel=2)
-    raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, scale.points_per_ink)
-    output = model.predict(raster[None, None])[0]
-    lab_map = output_to_map(output, points.domain, pixels_per_unit, map_width(points.domain, model, width))
-    evidence = local_evidence(points, lab_map.L.shape, pixels_per_unit)
+    width_px = map_width(points.domain, model, width)
+    shape = (max(1, round(width_px * points.domain[1] / points.domain[0])), width_px)
+    lab_map, output, pixels_per_unit = read_pattern(points, model, scale.points_per_ink, shape)
+    density, factor = lab_map.density(), None
+    if calibrate:
+        density, factor = calibrate_density(density, len(points) / scale.points_per_ink)
+    ab = lab_map.ab.astype(np.float64)
+    evidence = local_evidence(points, shape, pixels_per_unit)
+    zooms, zoomed_share = (1,), 0.0
+    if fill_thin and len(points):
+        zoom = correlation_zoom(density)
+        zooms = zoom_levels(zoom)
+        ab_readings, evidence_readings = [ab], [evidence]
+        for f in zooms[1:]:
+            zoomed, _, zoomed_pixels_per_unit = read_pattern(points, model, scale.points_per_ink / f, shape)
+            ab_readings.append(zoomed.ab.astype(np.float64))
+            evidence_readings.append(local_evidence(points, shape, zoomed_pixels_per_unit))
+        ab, evidence = blend_zoomed(zoom, zooms, ab_readings), blend_zoomed(zoom, zooms, evidence_readings)
+        zoomed_share = float(np.mean(zoom > 1.0)) if len(zooms) > 1 else 0.0
+    lab_map = LabMap(np.concatenate([100.0 * (1.0 - density[..., None]), ab], axis=-1))
     source = False
     if fill_thin:
         lab_map, source = fill_thin_correlation(lab_map, evidence)
-    return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source), output, pixels_per_unit)
+    return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source), output, pixels_per_unit, zooms,
+                     zoomed_share, factor)
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

@@ -5,8 +5,11 @@ Manual optimisation, one discriminator and one generator step per batch:
 * discriminator: ``(GAN(D(x, y), real) + GAN(D(x, G(x)), fake)) / 2``;
 * generator: ``L1(G(x), y) + adversarial_weight * GAN(D(x, G(x)), real)``
   (paper: weight 0.001);
-* Adam (lr 1e-4, betas (0.5, 0.999)) for both; the learning rates halve every
-  ``lr_halving_epochs`` epochs (paper: 100).
+* Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
+  learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
+  ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
+  then decaying linearly to 0 over ``lr_decay_epochs`` epochs (for a
+  fine-tuning stage that ends when validation has settled).
 
 Validation logs ``val/density_mae`` and ``val/latent_mae`` (see
 :mod:`patternshop_nn.baselines`) and writes a PNG of a few predictions per
@@ -25,6 +28,8 @@ from torch import nn
 from patternshop_nn.baselines import LATENT_MIN_DENSITY
 from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator, init_weights
 
+LR_POLICIES = ("step", "linear")
+
 
 class Pix2PixModule(L.LightningModule):
     """Generator + conditional PatchGAN; ``generator`` maps (B, 1, S, S) rasters to (B, 3, S, S) maps in [0, 1]."""
@@ -32,8 +37,11 @@ class Pix2PixModule(L.LightningModule):
     def __init__(self, levels: int = 6, base_channels: int = 12, max_channels: int = 96, dropout: float = 0.0,
                  disc_channels: int = 16, disc_layers: int = 3, gan_mode: str = "vanilla", adversarial_weight: float = 0.001,
                  lr: float = 1e-4, betas: tuple[float, float] = (0.5, 0.999), lr_halving_epochs: int = 100,
-                 sample_images: int = 4, upsample: str = "transposed") -> None:
+                 sample_images: int = 4, upsample: str = "transposed", lr_policy: str = "step", lr_constant_epochs: int = 0,
+                 lr_decay_epochs: int = 20) -> None:
         super().__init__()
+        if lr_policy not in LR_POLICIES:
+            raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
         self.save_hyperparameters()
         self.automatic_optimization = False
         # upsample's default is the shipped checkpoint's architecture (its hparams predate the option);
@@ -51,8 +59,15 @@ class Pix2PixModule(L.LightningModule):
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams
         optimizers = [torch.optim.Adam(net.parameters(), lr=hp.lr, betas=tuple(hp.betas)) for net in (self.generator, self.discriminator)]
-        schedulers = [torch.optim.lr_scheduler.StepLR(opt, step_size=hp.lr_halving_epochs, gamma=0.5) for opt in optimizers]
-        return optimizers, schedulers
+        return optimizers, [self._scheduler(opt) for opt in optimizers]
+
+    def _scheduler(self, optimizer: torch.optim.Optimizer) -> torch.optim.lr_scheduler.LRScheduler:
+        """The epoch-wise learning-rate schedule of ``lr_policy`` (see module docstring)."""
+        hp = self.hparams
+        if hp.get("lr_policy", "step") == "step":
+            return torch.optim.lr_scheduler.StepLR(optimizer, step_size=hp.lr_halving_epochs, gamma=0.5)
+        constant, decay = int(hp.lr_constant_epochs), max(1, int(hp.lr_decay_epochs))
+        return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda epoch: min(1.0, max(0.0, 1.0 - (epoch - constant) / decay)))
 
     def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> None:
         raster, target = batch

@@ -3,7 +3,9 @@
 Every input is made here, by other methods than the synthesiser the model was
 trained on, at the synthesiser's scale (50,000 points per fully dark unit
 square unless said otherwise), and read the way ``patternshop infer`` reads it
-(:func:`export.runtime.infer_map`: automatic scale, thin correlation filled).
+(:func:`export.runtime.infer_map`: automatic scale, ink calibrated to the points,
+light areas' correlation read zoomed, thin correlation filled; ``--raw``: the
+network's output as it came).
 
 1. **Stipplings of pictures**: scikit-image's ``camera``, ``astronaut``,
    ``moon`` and ``coins`` only (the other pictures stay unseen checks), density
@@ -83,7 +85,7 @@ STATIONARY: dict[str, tuple[Callable[[int, int], np.ndarray], str]] = {  # proce
     "poisson": (_generator("white"), "white"),
     "poisson_disk": (poisson_disk, "blue"),
     "lloyd": (_lloyd_process, "blue"),
-    "jitter": (_generator("jitter"), "step"),
+    "jitter": (_generator("jitter"), "jitter"),
     "thomas": (_generator("red"), "red"),
 }
 
@@ -153,7 +155,7 @@ def stipplings(model: OnnxModel, pictures: tuple[str, ...], seed: int, fill: boo
         for method in STIPPLERS:
             xy = METHODS[method](density, STIPPLE_POINTS, domain, np.random.default_rng(seed))
             scale = points_per_ink_of(len(xy), density)
-            lab_map = infer_map(PointSet(xy, domain), model, scale=ScaleChoice(scale, False), fill_thin=fill).lab_map
+            lab_map = infer_map(PointSet(xy, domain), model, scale=ScaleChoice(scale, False), fill_thin=fill, calibrate=fill).lab_map
             truth = resample(density, lab_map.L.shape)
             truth_L = 100.0 * (1.0 - truth)
             ssim, mae = l_scores(truth_L, lab_map.L.astype(np.float64))
@@ -212,7 +214,7 @@ def stationary(model: OnnxModel, palette: Palette, densities: tuple[float, ...],
         for density in densities:
             n = round(density * POINTS_PER_INK)
             xy = make(n, seed)
-            inference = infer_map(PointSet(xy), model, fill_thin=fill)
+            inference = infer_map(PointSet(xy), model, fill_thin=fill, calibrate=fill)
             lab_map = inference.lab_map
             rows.append({"process": process, "preset": preset, "density": density, "n": len(xy),
                          "points_per_ink": round(inference.scale.points_per_ink), "automatic_scale": inference.scale.points_per_ink != POINTS_PER_INK,
@@ -241,12 +243,12 @@ def inventions(model: OnnxModel, palette: Palette, seed: int, synthesise: bool, 
     """Section 4: empty, one point, half-empty."""
     from synthesis.synthesize import point_count
 
-    empty = infer_map(PointSet(np.zeros((0, 2))), model, fill_thin=fill).lab_map
-    one = infer_map(PointSet(np.array([[0.5, 0.5]])), model, fill_thin=fill).lab_map
+    empty = infer_map(PointSet(np.zeros((0, 2))), model, fill_thin=fill, calibrate=fill).lab_map
+    one = infer_map(PointSet(np.array([[0.5, 0.5]])), model, fill_thin=fill, calibrate=fill).lab_map
     rng = np.random.default_rng(seed)
     half_n = round(0.5 * 0.5 * POINTS_PER_INK)
     half_xy = rng.random((half_n, 2)) * [0.5, 1.0]
-    half = infer_map(PointSet(half_xy), model, fill_thin=fill).lab_map
+    half = infer_map(PointSet(half_xy), model, fill_thin=fill, calibrate=fill).lab_map
     density = half.density()
     result = {"empty_min_L": round(float(empty.L.min()), 2), "empty_share_L97": round(float(np.mean(empty.L >= 97)), 4),
               "one_point_share_L95": round(float(np.mean(one.L >= 95)), 4),
@@ -263,11 +265,11 @@ def inventions(model: OnnxModel, palette: Palette, seed: int, synthesise: bool, 
     return result
 
 
-def point_counts(model: OnnxModel, counts: tuple[int, ...], seed: int) -> list[dict]:
+def point_counts(model: OnnxModel, counts: tuple[int, ...], seed: int, fill: bool) -> list[dict]:
     """Section 5: Poisson patterns of each count -> (count synthesize would make) / count (L only: a, b do not matter)."""
     rows = []
     for n in counts:
-        inference = infer_map(PointSet(np.random.default_rng([seed, n]).random((n, 2))), model)
+        inference = infer_map(PointSet(np.random.default_rng([seed, n]).random((n, 2))), model, fill_thin=fill, calibrate=fill)
         made = synthesised_count(inference.lab_map, inference.scale.points_per_ink)
         rows.append({"n": n, "points_per_ink": round(inference.scale.points_per_ink), "synthesised": made, "ratio": round(made / n, 4)})
     return rows
@@ -333,7 +335,7 @@ def evaluate_ood(model_path: Path, palette: Palette, quick: bool, seed: int, pre
                "stipplings": stipplings(model, pictures, seed, fill, sheets["stipplings"]),
                "stationary": stationary(model, palette, densities, seed, fill, sheets["stationary"]),
                "inventions": inventions(model, palette, seed, not quick, fill, sheets["inventions"]),
-               "point_counts": point_counts(model, counts, seed), "cost": cost(model_path)}
+               "point_counts": point_counts(model, counts, seed, fill), "cost": cost(model_path)}
     results["seconds"] = round(time.perf_counter() - start, 1)
     results["targets"] = targets(results)
     if preview_dir is not None:
@@ -371,7 +373,7 @@ def markdown(results: dict) -> str:
     """The results as markdown tables: targets, stipplings, stationary processes, point counts."""
     lines = [f"# Out-of-distribution evaluation: {results.get('model_name') or results['model']}", "",
              f"{'Quick' if results['quick'] else 'Full'} run, seed {results['seed']}, {results['seconds']} s, "
-             f"a,b {'filled where the evidence is thin (as infer does)' if results['fill_thin'] else 'as the network gave them (--no-fill)'}.", "",
+             f"a,b {'as infer makes them (ink calibrated, light areas read zoomed, thin a,b filled)' if results['fill_thin'] else 'as the network gave them (--raw)'}.", "",
              "| figure | target | measured | met |", "|---|---|---|---|"]
     lines += [f"| {t['figure']} | {t['target']} | {t['measured']} | {'yes' if t['met'] else 'no'} |" for t in results["targets"]]
     lines += ["", "## Stipplings (L against the picture)", "",

@@ -6,7 +6,9 @@
    Trainer of ``trainer=cpu|gpu|ddp``, checkpointing into ``${run_dir}/checkpoints``
    (``last.ckpt`` every ``checkpoint_every_n_steps`` steps and at epoch ends,
    ``best.ckpt`` by validation L1). Rerunning the same command resumes from
-   ``last.ckpt`` (``resume=false`` starts over).
+   ``last.ckpt`` (``resume=false`` starts over). ``init_from=<checkpoint>``
+   starts a new run (new optimisers and schedule) from another run's weights:
+   a fine-tuning stage, e.g. on whole rasters with a decaying learning rate.
 3. Writes ``${run_dir}/summary.json``: steps, epochs, wall time, median
    training-step time, the last validation metrics and the baselines (also
    after Ctrl+C, which stops at the current step; ``last.ckpt`` is at most
@@ -57,6 +59,20 @@ def make_pairs(cfg: DictConfig) -> None:
         print(f"[train] pairs: {json.dumps(summary)}", file=sys.stderr)
 
 
+def load_weights(model: L.LightningModule, checkpoint: Path) -> None:
+    """Generator and discriminator weights of ``checkpoint`` (a Lightning checkpoint of the same architecture)."""
+    if not checkpoint.is_file():
+        raise PatternshopError(f"init_from: no such checkpoint {checkpoint}")
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False).get("state_dict")
+    if state is None:
+        raise PatternshopError(f"init_from: {checkpoint} is not a Lightning checkpoint (no state_dict)")
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise PatternshopError(f"init_from: {checkpoint} does not fit the configured model ({str(exc).splitlines()[0]})") from exc
+    print(f"[train] weights from {checkpoint}", file=sys.stderr)
+
+
 def train(cfg: DictConfig) -> dict:
     """Run steps 1-3 of the module docstring; returns the summary."""
     from lightning.pytorch.callbacks import ModelCheckpoint
@@ -75,6 +91,8 @@ def train(cfg: DictConfig) -> dict:
                                 max_val_items=data.max_val_items, baselines=bool(data.baselines),
                                 baseline_cells=int(data.baseline_cells))
     model = hydra.utils.instantiate(cfg.model, _convert_="all")
+    if cfg.get("init_from"):
+        load_weights(model, Path(cfg.init_from))
     checkpoints = run_dir / "checkpoints"
     timer = StepTimer()
     callbacks = [
@@ -95,7 +113,7 @@ def train(cfg: DictConfig) -> dict:
     except SystemExit:  # Lightning's graceful stop on Ctrl+C ends in exit(1): still write the summary
         interrupted = True
     metrics = {key: round(float(value), 6) for key, value in trainer.callback_metrics.items() if key.startswith("val/")}
-    summary = {"run_dir": str(run_dir), "resumed_from": resume_from, "interrupted": interrupted, "global_step": trainer.global_step,
+    summary = {"run_dir": str(run_dir), "resumed_from": resume_from, "init_from": cfg.get("init_from"), "interrupted": interrupted, "global_step": trainer.global_step,
                "epochs": trainer.current_epoch, "seconds_this_run": round(time.perf_counter() - start, 1),
                "median_step_seconds": round(statistics.median(timer.seconds), 4) if timer.seconds else None,
                "batch_size": int(data.batch_size), "threads": torch.get_num_threads(),

@@ -85,3 +85,28 @@ def test_kde_reads_a_non_square_pattern_at_the_synthesisers_scale() -> None:
     xy = np.random.default_rng(0).random((20_000, 2)) * [1.0, 0.5]
     assert points_per_ink == 40_000
     assert ood.kde_L(xy, (128, 256), points_per_ink, 4.0)[20:-20, 20:-20].mean() == pytest.approx(50, abs=1)
+
+
+@pytest.mark.parametrize("method", ["random", "lloyd", "poisson_disk", "jitter"])
+def test_other_method_labels_are_what_the_palette_reads(method: str) -> None:
+    """A training label is the preset nearest to the non-learned palette decoding of the method's pattern
+    (palette v2 put the jittered grid at its own preset, not step's: the v2 pairs taught the network 'step')."""
+    from data_gen.stipplers import LABELS
+
+    palette = load_palette()
+    names, colours = zip(*palette.preset_ab().items(), strict=True)
+    xy = METHODS[method](np.full((64, 64), 0.6), 2048, (1.0, 1.0), np.random.default_rng(0))
+    decoded = palette.locate(xy)
+    nearest = names[int(np.argmin(np.linalg.norm(np.array(colours) - [decoded.a, decoded.b], axis=1)))]
+    assert nearest == LABELS[method]
+
+
+def test_cluster_label_is_a_clustered_colour() -> None:
+    """Thomas clusters decode unstably (red or green by realisation), but always in the clustered half (b > 0)."""
+    from data_gen.stipplers import LABELS
+
+    palette = load_palette()
+    for seed in (0, 1):
+        decoded = palette.locate(METHODS["clusters"](np.full((64, 64), 0.6), 2048, (1.0, 1.0), np.random.default_rng(seed)))
+        assert decoded.b > 20
+    assert palette.preset_ab()[LABELS["clusters"]][1] > 20

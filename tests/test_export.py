@@ -49,6 +49,21 @@ def tiny_onnx(tiny_module: Pix2PixModule, tmp_path_factory: pytest.TempPathFacto
     return path
 
 
+def test_resize_convolution_model_is_exported_fused_and_equal(tmp_path: Path) -> None:
+    """A nearest-up-sampling generator goes out with its up-sampling fused (no Resize node left) and computes the same maps."""
+    import onnx
+
+    torch.manual_seed(3)
+    module = Pix2PixModule(base_channels=4, max_channels=8, upsample="nearest")
+    path = tmp_path / "nearest.onnx"
+    export_onnx(module, path, CARD)
+    ops = {node.op_type for node in onnx.load(str(path)).graph.node}
+    assert "Resize" not in ops and "DepthToSpace" in ops
+    rng = np.random.default_rng(4)
+    assert max_abs_difference(module, path, rng.random((2, 1, 256, 256), dtype=np.float32)) <= 1e-5
+    assert max_abs_difference(module, path, rng.random((1, 1, 320, 320), dtype=np.float32)) <= 1e-5
+
+
 def uniform_points(n: int, domain: tuple[float, float] = (1.0, 1.0), seed: int = 0) -> PointSet:
     return PointSet(np.random.default_rng(seed).random((n, 2)) * domain, domain)
 

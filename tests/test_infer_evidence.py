@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from export.evidence import (DENSE_THRESHOLD, EVIDENCE_RADIUS_PX, ScaleChoice, choose_points_per_ink, fill_thin_correlation,
-                             local_evidence, summarise)
+from export.evidence import (DENSE_THRESHOLD, EVIDENCE_RADIUS_PX, MAX_ZOOM, WORK_DENSITY, ScaleChoice, blend_zoomed,
+                             calibrate_density, choose_points_per_ink, correlation_zoom, fill_thin_correlation, local_evidence,
+                             summarise, zoom_levels)
 from export.onnx import export_onnx
 from patternshop_nn.networks import DualBranchUNet
 from synthesis.generators import generate
@@ -76,7 +77,7 @@ def test_thin_correlation_is_filled_from_the_surroundings() -> None:
 def test_infer_chooses_reports_and_keeps_an_override(tiny_model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     dense, sparse = tmp_path / "dense.txt", tmp_path / "sparse.txt"
     write_points(PointSet(generate("white", 75_000, seed=3)), dense)
-    write_points(PointSet(generate("white", 2_000, seed=4)), sparse)
+    write_points(PointSet(generate("white", 30, seed=4)), sparse)
     report = tmp_path / "r.json"
     status, _, err = run_cli(["infer", str(dense), str(tmp_path / "d.tif"), "--model", str(tiny_model), "--report", str(report)], capsys)
     assert status == 0, err
@@ -110,9 +111,49 @@ def test_convert_reads_each_file_at_its_own_scale(tiny_model: Path, tmp_path: Pa
 
 
 def test_infer_takes_an_empty_pattern(tiny_model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """No points is a pattern too (its map should be white; what the network makes of it is the evaluation's business)."""
+    """No points is a pattern too, and its map is white: the ink is calibrated to the points (none)."""
     source = tmp_path / "empty.txt"
     source.write_text("# domain: 1 0.5\n")
     status, _, err = run_cli(["infer", str(source), str(tmp_path / "e.tif"), "--model", str(tiny_model)], capsys)
     assert status == 0 and "from 0 points" in err
-    assert read_map(tmp_path / "e.tif").lab.shape == (128, 256, 3)
+    lab = read_map(tmp_path / "e.tif").lab
+    assert lab.shape == (128, 256, 3) and lab[..., 0].min() == pytest.approx(100.0, abs=0.01)
+
+
+def test_calibrated_ink_holds_the_pattern_count() -> None:
+    density = np.linspace(0.0, 0.5, 64 * 64).reshape(64, 64)
+    calibrated, factor = calibrate_density(density, 0.6)  # uniform on [0, s/2] capped at 1 has mean 1 - 1/s: s = 2.5
+    assert calibrated.mean() == pytest.approx(0.6, rel=1e-6) and calibrated.max() == 1.0  # water-filled under full ink
+    assert factor == pytest.approx(2.5, rel=1e-3) and np.all(np.diff(calibrated.ravel()) >= 0)  # order kept
+    light, factor = calibrate_density(density, 0.025)
+    assert light == pytest.approx(density * 0.1, abs=1e-9) and factor == pytest.approx(0.1)
+    white, factor = calibrate_density(density, 0.0)
+    assert not white.any() and factor == 0.0
+    blank, factor = calibrate_density(np.zeros((8, 8)), 0.3)  # nothing to scale: left as it is
+    assert not blank.any() and factor == 1.0
+
+
+def test_correlation_zoom_reads_light_areas_at_the_working_density() -> None:
+    density = np.array([[1.0, WORK_DENSITY, WORK_DENSITY / 4, WORK_DENSITY / 10, 0.0]])
+    zoom = correlation_zoom(density)
+    assert zoom[0] == pytest.approx([1.0, 1.0, 4.0, 10.0, MAX_ZOOM])
+    assert zoom_levels(zoom) == (1, 4, 16, 64) and zoom_levels(zoom[:, :3]) == (1, 4) and zoom_levels(zoom[:, :2]) == (1,)
+    readings = [np.full((1, 5, 2), value) for value in (0.0, 4.0, 16.0, 64.0)]
+    blended = blend_zoomed(zoom, (1, 4, 16, 64), readings)
+    # exact at the levels, linear in log zoom between them: zoom 10 lies at log4(10) - 1 = 0.66 of the way from 4 to 16
+    assert blended[0, :, 0] == pytest.approx([0.0, 0.0, 4.0, 4.0 + 12.0 * (math.log(10, 4) - 1), 64.0])
+
+
+def test_infer_keeps_the_point_count_and_reads_light_patterns_zoomed(tiny_model: Path) -> None:
+    from export.runtime import OnnxModel, infer_map
+    from synthesis.synthesize import point_count
+
+    model = OnnxModel(tiny_model)
+    for n in (200, 3_000):
+        inference = infer_map(PointSet(generate("white", n, seed=7)), model)
+        assert point_count(inference.lab_map, inference.scale.points_per_ink) == n
+        assert inference.zooms[-1] > 1 and inference.zoomed_share > 0.9
+        report = inference.report()
+        assert report["correlation_zooms"] == list(inference.zooms) and report["ink_calibration_factor"] > 0
+    raw = infer_map(PointSet(generate("white", 3_000, seed=7)), model, fill_thin=False, calibrate=False)
+    assert raw.zooms == (1,) and raw.calibration is None

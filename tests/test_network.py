@@ -19,7 +19,7 @@ from data_gen.shards import load_pairs
 from patternshop_nn.baselines import density_mae, kde_density, latent_mae, windowed_latent
 from patternshop_nn.data import PairDataModule, PairDataset, dihedral, split_items
 from patternshop_nn.module import Pix2PixModule
-from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator
+from patternshop_nn.networks import DualBranchUNet, GANLoss, NearestUpConv, PatchDiscriminator, fuse_upsampling
 from synthesis.generators import generate as generate_points
 from synthesis.palette import ab_to_latent, load_palette
 from synthesis.raster import point_raster
@@ -200,6 +200,34 @@ def test_train_end_to_end_and_resume(tmp_path: Path) -> None:
     assert resumed["global_step"] == 12 and resumed["epochs"] == 2
 
 
+def test_fine_tuning_starts_from_another_runs_weights_with_a_decaying_rate(tmp_path: Path) -> None:
+    first = _train(tmp_path, "trainer.max_epochs=1")
+    assert first.returncode == 0, first.stderr[-2000:]
+    source = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    tuned = _train(tmp_path, "trainer.max_epochs=2", f"init_from={source}", f"run_dir={tmp_path / 'tuned'}",
+                   "model.lr_policy=linear", "model.lr_decay_epochs=2")
+    assert tuned.returncode == 0, tuned.stderr[-2000:]
+    assert f"weights from {source}" in tuned.stderr
+    summary = json.loads((tmp_path / "tuned" / "summary.json").read_text())
+    assert summary["init_from"] == str(source) and summary["resumed_from"] is None and summary["global_step"] == 12
+    missing = _train(tmp_path, f"init_from={tmp_path / 'nope.ckpt'}", f"run_dir={tmp_path / 'none'}")
+    assert missing.returncode == 2 and "init_from: no such checkpoint" in missing.stderr
+
+
+def test_linear_policy_holds_then_decays_to_zero() -> None:
+    module = Pix2PixModule(base_channels=4, max_channels=8, lr_policy="linear", lr_constant_epochs=2, lr_decay_epochs=4)
+    optimizer = torch.optim.Adam(module.generator.parameters(), lr=1e-4)
+    scheduler = module._scheduler(optimizer)
+    rates = []
+    for _ in range(8):
+        rates.append(optimizer.param_groups[0]["lr"])
+        optimizer.step()
+        scheduler.step()
+    assert rates == pytest.approx([1e-4, 1e-4, 1e-4, 0.75e-4, 0.5e-4, 0.25e-4, 0.0, 0.0])
+    with pytest.raises(ValueError, match="lr_policy"):
+        Pix2PixModule(lr_policy="cosine")
+
+
 def test_train_user_error_is_one_line(tmp_path: Path) -> None:
     result = subprocess.run([sys.executable, str(ROOT / "train.py"), "dataset=faces", f"run_dir={tmp_path / 'run'}"],
                             capture_output=True, text=True, timeout=120, cwd=tmp_path)
@@ -272,6 +300,31 @@ def test_resize_convolution_has_no_lattice_on_a_constant_input(upsample: str) ->
     assert np.ptp(outputs[upsample], axis=(1, 2)).max() < 1e-6
     locked = [phase_locked_share(channel.astype(np.float64), 64) for channel in outputs["transposed"]]
     assert np.ptp(outputs["transposed"], axis=(1, 2)).min() > 1e-5 and min(locked) > 0.9
+
+
+@pytest.mark.parametrize(("height", "width", "bias"), [(5, 7, True), (1, 1, False), (8, 8, True)])
+def test_fused_nearest_up_convolution_equals_upsample_then_convolution(height: int, width: int, bias: bool) -> None:
+    torch.manual_seed(height)
+    conv = torch.nn.Conv2d(3, 5, 3, 1, 1, bias=bias)
+    x = torch.randn(2, 3, height, width)
+    with torch.no_grad():
+        expected = conv(torch.nn.functional.interpolate(x, scale_factor=2, mode="nearest"))
+        assert torch.allclose(NearestUpConv(conv)(x), expected, atol=1e-5)
+    with pytest.raises(ValueError, match="3x3"):
+        NearestUpConv(torch.nn.Conv2d(3, 5, 5, 1, 2))
+
+
+def test_fused_generator_computes_the_same_map() -> None:
+    torch.manual_seed(1)
+    generator = DualBranchUNet(base_channels=4, max_channels=16, upsample="nearest").eval()
+    raster = torch.rand(1, 1, 128, 128) * 0.3
+    with torch.no_grad():
+        expected = generator(raster)
+        fused = fuse_upsampling(generator)
+        assert sum(isinstance(m, NearestUpConv) for m in fused.modules()) == 2 * 6  # every decoder level and head
+        assert torch.allclose(fused(raster), expected, atol=1e-6)
+    transposed = DualBranchUNet(base_channels=4, max_channels=16, upsample="transposed")
+    assert not any(isinstance(m, NearestUpConv) for m in fuse_upsampling(transposed).modules())
 
 
 def test_new_runs_use_resize_convolution_and_the_shipped_config_still_builds() -> None:
