@@ -13,10 +13,14 @@
    ``R = 256 * sqrt(points_per_ink / (w h P_train))`` pixels per unit of the
    domain ``[0, w] x [0, h]``, so that a region of density d has as many points
    per pixel, at the same spacing in pixels, as in training.
-2. **Pad.** The raster is :func:`synthesis.raster.point_raster` of the points
-   on a square canvas of side ``ceil(R / 64) * 64`` (the U-Net needs multiples
-   of 64): the domain fills its top-left ``w R`` x ``h R`` pixels, the rest is
-   empty padding (the network sees a white border there).
+2. **Mirror and pad.** The raster is :func:`synthesis.raster.point_raster`
+   of the points and their mirror images across each side of the domain
+   within :data:`BORDER_PX` raster pixels, on a square canvas of side
+   ``ceil((max(w, h) R + 2 BORDER_PX) / 64) * 64`` (the U-Net needs multiples
+   of 64): the domain's ``w R`` x ``h R`` pixels start at ``(BORDER_PX,
+   BORDER_PX)``, the rest is empty. Without the mirror, the network saw the
+   pattern end at the domain's border and darkened a rim there (it learnt the
+   synthesiser's thinner borders).
 3. **Run and crop back.** The network is fully convolutional; its output is
    cropped to the domain, decoded (L = 100 x channel 0, a, b = 255 x channels
    1-2 - 128) and resampled to the requested width (default: 256 px on the
@@ -55,6 +59,7 @@ DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "patternshop_nn" / "ass
 INPUT_NAME = "raster"
 OUTPUT_NAME = "map"
 SIZE_MULTIPLE = 64  # raster sides must be multiples of 2**levels of the U-Net (6 levels)
+BORDER_PX = 32  # raster pixels of mirrored pattern around the domain (the network sees no edge of the points there)
 
 PathLike = str | os.PathLike
 
@@ -133,33 +138,54 @@ def _decode(value: str) -> object:
         return value
 
 
+def mirrored(points: PointSet, margin: float) -> np.ndarray:
+    """(m, 2) the points and their mirror images across each side of the domain within ``margin`` of it (corners too)."""
+    w, h = points.domain
+    xy = points.xy
+    copies = [xy]
+    for axis, side in ((0, w), (1, h)):
+        layer = np.concatenate(copies)
+        near_low, near_high = layer[layer[:, axis] < margin], layer[layer[:, axis] > side - margin]
+        low, high = near_low.copy(), near_high.copy()
+        low[:, axis] = -low[:, axis]
+        high[:, axis] = 2.0 * side - high[:, axis]
+        copies = [layer, low, high]
+    return np.concatenate(copies)
+
+
 def pattern_raster(points: PointSet, raster_size: int, trained_points_per_ink: float | None,
                    points_per_ink: float = POINTS_PER_INK) -> tuple[np.ndarray, float]:
-    """(raster (S, S) float32 in [0, 1], pixels per unit R) of a pattern, padded to a multiple of 64 (steps 1-2).
+    """(raster (S, S) float32 in [0, 1], pixels per unit R) of a pattern, mirrored at its border and padded (steps 1-2).
 
     ``raster_size`` and ``trained_points_per_ink`` are the model's (:class:`OnnxModel`); a model that does not
-    record its points per ink is taken to share the pattern's (R = raster_size).
+    record its points per ink is taken to share the pattern's (R = raster_size). The domain's pixels start at
+    (:data:`BORDER_PX`, :data:`BORDER_PX`).
     """
     scale, side = raster_scale(points.domain, raster_size, trained_points_per_ink, points_per_ink)
-    return point_raster(points.xy * (scale / side), side), scale
+    margin = BORDER_PX / scale
+    return point_raster((mirrored(points, margin) + margin) * (scale / side), side), scale
 
 
 def raster_scale(domain: tuple[float, float], raster_size: int, trained_points_per_ink: float | None,
                  points_per_ink: float = POINTS_PER_INK) -> tuple[float, int]:
-    """(pixels per unit R, raster side S in pixels, a multiple of 64) of a pattern on ``domain`` (step 1-2)."""
+    """(pixels per unit R, raster side S in pixels, a multiple of 64 holding the domain and its mirrored border)."""
     if not points_per_ink > 0:
         raise PatternshopError(f"points per ink must be positive, got {points_per_ink:g}")
     w, h = domain
     scale = raster_size * math.sqrt(points_per_ink / (w * h * (trained_points_per_ink or points_per_ink)))
-    return scale, SIZE_MULTIPLE * max(1, math.ceil(scale / SIZE_MULTIPLE - 1e-9))
+    return scale, SIZE_MULTIPLE * max(1, math.ceil((scale * max(w, h) + 2 * BORDER_PX) / SIZE_MULTIPLE - 1e-9))
 
 
 def output_to_map(output: np.ndarray, domain: tuple[float, float], scale: float, width: int) -> LabMap:
     """Decode one network output (3, S, S) in [0, 1]: crop to the domain's ``w R`` x ``h R`` pixels, resample to ``width``."""
-    w, h = domain
-    crop = np.asarray(output, np.float32)[:, : max(1, round(h * scale)), : max(1, round(w * scale))]
-    lab_map = LabMap.from_network(crop)
+    lab_map = LabMap.from_network(domain_crop(output, domain, scale))
     return resize(lab_map, width) if width != lab_map.width else lab_map
+
+
+def domain_crop(output: np.ndarray, domain: tuple[float, float], scale: float) -> np.ndarray:
+    """(3, hR, wR) the part of a network output (3, S, S) over the domain (from :data:`BORDER_PX` on)."""
+    w, h = domain
+    return np.asarray(output, np.float32)[:, BORDER_PX : BORDER_PX + max(1, round(h * scale)), BORDER_PX : BORDER_PX + max(1, round(w * scale))]
 
 
 def map_width(domain: tuple[float, float], model: OnnxModel, width: int | None) -> int:
@@ -190,9 +216,8 @@ def points_to_map(points: PointSet, model: OnnxModel, width: int | None = None,
 class Inference:
     """What :func:`infer_map` made: the map, the scale it read the pattern at, and the correlation evidence.
 
-    ``output`` is the network's raw output (3, S, S) in [0, 1] on the padded raster of the main reading,
-    ``pixels_per_unit`` that raster's pixels per unit of the domain (the domain fills its top-left ``w R`` x
-    ``h R`` pixels). ``zooms`` are the readings made for correlation (1: the main one only), ``zoomed_share``
+    ``output`` is the network's raw output over the domain (3, hR, wR) in [0, 1] of the main reading,
+    ``pixels_per_unit`` its raster's pixels per unit of the domain (R). ``zooms`` are the readings made for correlation (1: the main one only), ``zoomed_share``
     the share of the map whose a, b came from a zoomed reading, ``calibration`` the ink factor applied
     (None: the network's L as it came).
     """
@@ -213,10 +238,11 @@ class Inference:
 
 
 def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shape: tuple[int, int]) -> tuple[LabMap, np.ndarray, float]:
-    """(map resampled to ``shape`` (H, W), raw output (3, S, S), pixels per unit R): one network reading at a scale."""
+    """(map resampled to ``shape`` (H, W), raw output over the domain (3, hR, wR), pixels per unit R): one reading."""
     raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink)
-    output = model.predict(raster[None, None])[0]
-    lab_map = output_to_map(output, points.domain, pixels_per_unit, shape[1])
+    output = domain_crop(model.predict(raster[None, None])[0], points.domain, pixels_per_unit)
+    lab_map = LabMap.from_network(output)
+    lab_map = resize(lab_map, shape[1]) if shape[1] != lab_map.width else lab_map
     if lab_map.L.shape != shape:
         lab_map = resize(lab_map, shape[1], shape[0])
     return lab_map, output, pixels_per_unit

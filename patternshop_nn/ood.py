@@ -183,11 +183,10 @@ def phase_locked_share(channels: np.ndarray, period: int) -> float:
     return float((phase_means**2).mean(axis=(1, 2)).sum() / total) if total > 0 else 0.0
 
 
-def lattice(inference: Inference, domain: tuple[float, float]) -> dict:
+def lattice(inference: Inference) -> dict:
     """Phase-locked shares of L and a, b variance in the network's output over the domain (section 3),
     :data:`LATTICE_MARGIN_PX` in from its border where it is large enough (border effects are not a lattice)."""
-    w, h = domain
-    crop = inference.output[:, : round(h * inference.pixels_per_unit), : round(w * inference.pixels_per_unit)]
+    crop = inference.output
     if min(crop.shape[1:]) >= 4 * LATTICE_MARGIN_PX:
         crop = crop[:, LATTICE_MARGIN_PX:-LATTICE_MARGIN_PX, LATTICE_MARGIN_PX:-LATTICE_MARGIN_PX]
     result = {}
@@ -222,7 +221,7 @@ def stationary(model: OnnxModel, palette: Palette, densities: tuple[float, ...],
                          "mean_L": round(float(lab_map.L.mean()), 2), "L_spread_p5_p95": round(float(np.subtract(*np.percentile(lab_map.L, [95, 5]))), 2),
                          "mean_a": round(float(lab_map.ab[..., 0].mean()), 1), "mean_b": round(float(lab_map.ab[..., 1].mean()), 1),
                          "thin_evidence_share": round(inference.evidence.thin_share, 4),
-                         **lattice(inference, (1.0, 1.0))})
+                         **lattice(inference)})
             maps.append(lab_map.to_srgb())
         previews.append((process, maps))
     return rows

@@ -13,7 +13,7 @@ import torch
 
 from data_gen.provenance import file_sha256
 from export.onnx import OPSET, export_onnx, max_abs_difference
-from export.runtime import OnnxModel, check_palette, pattern_raster, points_to_map
+from export.runtime import BORDER_PX, OnnxModel, check_palette, mirrored, pattern_raster, points_to_map
 from patternshop_nn.module import Pix2PixModule
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.mapio import read_map
@@ -129,20 +129,32 @@ def test_pattern_scale_matches_training(tiny_onnx):
     """A pattern at points_per_ink P is rasterised at 256 sqrt(P / (w h P_train)) px per unit: same points per pixel."""
     model = OnnxModel(tiny_onnx)  # trained at 8000 points per ink
     square = uniform_points(20_000)
+    b = BORDER_PX
     raster, scale = pattern_raster(square, 256, 8000, 50_000)
-    assert scale == pytest.approx(640) and raster.shape == (640, 640)
-    assert raster.sum() == pytest.approx(20_000, rel=0.02)  # the clip at 1 per pixel takes ~0.6 %
+    assert scale == pytest.approx(640) and raster.shape == (704, 704)  # 640 + 2 x 32 mirrored, a multiple of 64
+    inside = raster[b : b + 640, b : b + 640]
+    assert inside.sum() == pytest.approx(20_000, rel=0.02)  # the clip at 1 per pixel takes ~0.6 %
     # mean points per pixel = what a map of the same density (0.4) held in training: 0.4 * 8000 / 256^2
-    assert raster.mean() == pytest.approx(0.4 * 8000 / 256**2, rel=0.01)
+    assert inside.mean() == pytest.approx(0.4 * 8000 / 256**2, rel=0.01)
     same, scale_same = pattern_raster(square, 256, 8000, 8000)
-    assert scale_same == pytest.approx(256) and same.shape == (256, 256)
-    np.testing.assert_allclose(same, point_raster(square.xy), atol=1e-6)
+    assert scale_same == pytest.approx(256) and same.shape == (320, 320)
+    np.testing.assert_allclose(same[b + 1 : b + 255, b + 1 : b + 255], point_raster(square.xy)[1:255, 1:255], atol=1e-6)
+    # the border is the pattern mirrored: column b - 1 - k holds what column b + k holds
+    np.testing.assert_allclose(same[b + 1 : b + 255, b - 8 : b][:, ::-1], same[b + 1 : b + 255, b : b + 8], atol=0.02)
     # a non-square domain of area 0.5 at the same points per ink: sqrt(2) more pixels per unit, padded to 64
     wide, scale_wide = pattern_raster(uniform_points(10_000, (1.0, 0.5)), 256, 8000, 8000)
-    assert scale_wide == pytest.approx(256 * np.sqrt(2)) and wide.shape == (384, 384)
-    assert wide[: round(0.5 * scale_wide) - 1, : round(scale_wide) - 1].mean() == pytest.approx(10_000 / (0.5 * scale_wide**2), rel=0.03)
-    assert wide[round(0.5 * scale_wide) + 1 :].sum() == 0  # padding below the domain stays empty
+    assert scale_wide == pytest.approx(256 * np.sqrt(2)) and wide.shape == (448, 448)
+    height, width = round(0.5 * scale_wide), round(scale_wide)
+    assert wide[b + 1 : b + height - 1, b + 1 : b + width - 1].mean() == pytest.approx(10_000 / (0.5 * scale_wide**2), rel=0.03)
+    assert wide[b + height + b + 1 :].sum() == 0  # below the domain and its mirrored border: empty
     assert points_to_map(square, model).lab.shape == (256, 256, 3)
+
+
+def test_mirrored_points_reflect_across_each_side_and_corner():
+    points = PointSet(np.array([[0.01, 0.5], [0.5, 0.98], [0.99, 0.01], [0.5, 0.5]]), (1.0, 1.0))
+    images = mirrored(points, 0.05)
+    expected = {(0.01, 0.5), (-0.01, 0.5), (0.5, 0.98), (0.5, 1.02), (0.99, 0.01), (1.01, 0.01), (0.99, -0.01), (1.01, -0.01), (0.5, 0.5)}
+    assert {tuple(np.round(p, 6)) for p in images} == expected and len(images) == len(expected)
 
 
 @pytest.mark.parametrize("domain", [(1.0, 0.5), (0.5, 1.0)])
@@ -154,7 +166,7 @@ def test_non_square_domain_is_padded_and_cropped(tiny_onnx, domain):
     assert (lab_map.width, lab_map.height) == (round(256 * w), round(256 * h))
     assert lab_map.domain == pytest.approx(domain)
     raster, scale = pattern_raster(points, 256, 8000, 8000)
-    full = model.predict(raster[None, None])[0]
+    full = model.predict(raster[None, None])[0][:, BORDER_PX:, BORDER_PX:]
     native = points_to_map(points, model, width=round(w * scale), points_per_ink=8000)
     np.testing.assert_allclose(native.L, 100 * full[0, : native.height, : native.width], atol=1e-3)
     np.testing.assert_allclose(native.ab, 255 * full[1:, : native.height, : native.width].transpose(1, 2, 0) - 128, atol=1e-3)

@@ -91,7 +91,12 @@ def test_infer_chooses_reports_and_keeps_an_override(tiny_model: Path, tmp_path:
     assert json.loads(report.read_text())["points_per_ink"] == 60_000
     status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "s.tif"), "--model", str(tiny_model), "--report", str(report)], capsys)
     assert status == 0 and "of the map has too few points to show correlation; its a,b were filled" in err
-    assert json.loads(report.read_text())["thin_evidence_share"] > 0.5
+    assert "ink scaled by" in err and "to hold the 30 points" in err and "read at fewer points per ink (4x, 16x, 64x)" in err
+    sparse_report = json.loads(report.read_text())
+    assert sparse_report["thin_evidence_share"] > 0.5 and sparse_report["correlation_zooms"] == [1, 4, 16, 64]
+    status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "c.tif"), "--model", str(tiny_model), "--no-calibrate",
+                              "--report", str(report)], capsys)
+    assert status == 0 and "ink scaled" not in err and json.loads(report.read_text())["ink_calibration_factor"] is None
     status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "n.tif"), "--model", str(tiny_model), "--no-fill"], capsys)
     assert status == 0 and "left as the network gave them" in err
 

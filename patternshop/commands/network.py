@@ -23,10 +23,13 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         "scale (--points-per-ink points make a fully dark map, so 'synthesize' of the map gives back as many "
         "points; without --points-per-ink, 50,000 unless the pattern is denser somewhere, then the scale at which its "
         "densest 1% reads as full ink: the chosen scale is printed) and rasterised so that its points per pixel match "
-        "the network's training; where too few points show correlation (very light areas), a,b are filled from the "
-        "surrounding well-observed correlation and the report says how much of the map that is; a non-square "
-        "domain fills the top-left of a square raster (the rest is empty) and the output is cropped back, "
-        "so the map keeps the domain's aspect, 256 px on its long side unless --width is given.",
+        "the network's training, mirrored 32 raster pixels beyond the domain's border. The ink is then scaled so that "
+        "the map holds the pattern's point count (an empty pattern gives a white map). Light areas (density below 0.4) "
+        "take a,b from readings at 4, 16 or 64 times fewer points per ink, where the network sees their "
+        "arrangement at a density it reads correlation at; where even then too few points show correlation, a,b are "
+        "filled from the surrounding well-observed correlation and the report says how much of the map that is. "
+        "A non-square domain lies on a square raster and the output is cropped back, so the map keeps the domain's "
+        "aspect, 256 px on its long side unless --width is given.",
     )
     infer.add_argument("points", help="input points (.txt, .csv or .npy)")
     infer.add_argument("output", help="output map: CIELAB .tif, or NAME.L.png for three channel PNGs")
@@ -40,7 +43,10 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        help=f"points of a fully dark map at the pattern's scale (default: {POINTS_PER_INK}, as synthesize, "
                        "raised automatically for a pattern denser than that)")
     infer.add_argument("--no-fill", action="store_true",
-                       help="keep the network's a,b where too few points show correlation (default: fill from the surroundings)")
+                       help="keep the network's a,b: no zoomed reading of light areas, no fill where too few points show "
+                       "correlation (default: both)")
+    infer.add_argument("--no-calibrate", action="store_true",
+                       help="keep the network's L (default: ink scaled so that the map holds the pattern's point count)")
     infer.add_argument("--report", metavar="JSON", help="write a JSON report (points per ink chosen, evidence shares, ...)")
     add_threads_option(infer)
     infer.set_defaults(func=run_infer)
@@ -86,7 +92,8 @@ def run_infer(args: argparse.Namespace) -> None:
     width = map_width(points.domain, model, args.width)
     check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
                  f"inferring a {width} px wide map from a {side}x{side} px raster ({scale.points_per_ink:g} points per ink)")
-    inference = infer_map(points, model, width=args.width, scale=scale, fill_thin=not args.no_fill)
+    inference = infer_map(points, model, width=args.width, scale=scale, fill_thin=not args.no_fill,
+                          calibrate=not args.no_calibrate)
     report = {"points": args.points, "n": len(points), "model": str(model.path), "output": str(output), **inference.report()}
     with all_or_nothing():
         write_map(inference.lab_map, output, bits=args.bits)
@@ -99,6 +106,12 @@ def run_infer(args: argparse.Namespace) -> None:
     keep = (f"; pass --points-per-ink {scale.points_per_ink:.0f} to synthesize to keep the point count"
             if scale.points_per_ink != POINTS_PER_INK else "")
     print(f"read at {scale.describe()}{keep}", file=sys.stderr)
+    if inference.calibration is not None and len(points):
+        print(f"ink scaled by {inference.calibration:.3g} to hold the {len(points)} points", file=sys.stderr)
+    if inference.zoomed_share > 0:
+        zooms = ", ".join(f"{zoom}x" for zoom in inference.zooms[1:])
+        print(f"a,b of {100 * inference.zoomed_share:.1f}% of the map (its light areas) read at fewer points per ink ({zooms})",
+              file=sys.stderr)
     if evidence.thin_share > 0:
         action = "filled from the surrounding correlation" if evidence.filled else "left as the network gave them"
         print(f"{100 * evidence.thin_share:.1f}% of the map has too few points to show correlation; its a,b were {action}",
