@@ -99,12 +99,14 @@ def torch_generator(model: OnnxModel, exported_from: torch.nn.Module | None) -> 
     else:
         info = {"source": None, "note": f"no {CHECKPOINT.relative_to(ROOT)}"}
     levels = int((model.metadata.get("generator") or {}).get("levels") or 6)
+    upsample = (model.metadata.get("generator") or {}).get("upsample") or "transposed"
     base, widest = width_of(weights, levels)
     torch.manual_seed(0)
-    generator = DualBranchUNet(1, levels, base, widest).eval()
+    generator = DualBranchUNet(1, levels, base, widest, upsample=upsample).eval()
     parameters = sum(p.numel() for p in generator.parameters())
     expected = (model.metadata.get("generator") or {}).get("parameters")
-    info.update({"source": f"untrained DualBranchUNet(levels={levels}, base_channels={base}, max_channels={widest})",
+    info.update({"source": f"untrained DualBranchUNet(levels={levels}, base_channels={base}, max_channels={widest}, "
+                           f"upsample={upsample!r})",
                  "same_weights_as_onnx": False, "parameters": parameters, "onnx_parameters": expected,
                  "note": info["note"] + ": an untrained generator of the same width, for timing only"})
     return generator, info
@@ -143,6 +145,23 @@ def per_map(model_path: Path, generator: torch.nn.Module, repeats: int) -> dict:
     out["target"] = f"ONNX Runtime, 1 thread, batch 1: <= {TARGET_MS_PER_MAP:g} ms per 256x256 map"
     out["target_met"] = ort <= TARGET_MS_PER_MAP
     out["repeats"] = repeats
+    return out
+
+
+def fusion(generator: torch.nn.Module, tmp: Path, repeats: int) -> dict:
+    """ONNX Runtime ms per 256 x 256 map (1 thread, batch 1) of the torch twin exported with and without fused
+    nearest up-sampling (:func:`patternshop_nn.networks.fuse_upsampling`), and their largest difference."""
+    raster = np.random.default_rng(2).random((1, 1, RASTER_SIZE, RASTER_SIZE), dtype=np.float32)
+    out: dict = {}
+    for fused in (False, True):
+        path = tmp / f"twin_{'fused' if fused else 'unfused'}.onnx"
+        export_onnx(generator, path, {"name": "bench twin", "points_per_ink": 8000}, fuse=fused)
+        model = OnnxModel(path, threads=1)
+        seconds, _ = median_seconds(lambda model=model: model.predict(raster), repeats=repeats, warmup=1)
+        out[f"{'fused' if fused else 'unfused'}_ms_per_map"] = round(1000 * seconds, 2)
+        out[f"{'fused' if fused else 'unfused'}_output"] = model.predict(raster)
+    out["max_abs_difference"] = float(np.abs(out.pop("fused_output") - out.pop("unfused_output")).max())
+    out["speed_up"] = round(out["unfused_ms_per_map"] / out["fused_ms_per_map"], 2)
     return out
 
 
@@ -270,6 +289,9 @@ def report_lines(results: dict) -> list[str]:
             lines.append(f"{engine:12s} {threads}: batch 1 {row['batch_1_ms_per_map']:7.2f} ms/map, "
                          f"batch 8 {row['batch_8_ms_per_map']:7.2f} ms/map")
     lines.append(f"target {per['target']}: {'met' if per['target_met'] else 'NOT met'}")
+    fused = results["fusion"]
+    lines.append(f"torch twin exported unfused {fused['unfused_ms_per_map']:.2f} ms/map, fused {fused['fused_ms_per_map']:.2f} ms/map "
+                 f"(x{fused['speed_up']:.2f}, max difference {fused['max_abs_difference']:.2g})")
     parity_result = results["parity"]
     if "skipped" in parity_result:
         lines.append(f"parity: skipped ({parity_result['skipped']})")
@@ -299,6 +321,7 @@ def main() -> None:
         results["model"]["trained_points_per_ink"] = model.points_per_ink
         generator, results["torch_generator"] = torch_generator(model, exported_from)
         results["per_map_256"] = per_map(model_path, generator, repeats=3 if args.quick else 15)
+        results["fusion"] = fusion(generator, tmp, repeats=3 if args.quick else 15)
         results["parity"] = parity(model, generator, results["torch_generator"])
 
         count = 20 if args.quick else 200

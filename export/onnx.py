@@ -98,7 +98,7 @@ def metadata_from_pairs(pairs_dir: PathLike) -> dict:
             "points_per_ink": manifest["settings"]["points_per_ink"], "palette_sha256": manifest["palette"]["sha256"]}
 
 
-def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, metadata: dict | None = None) -> dict:
+def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, metadata: dict | None = None, fuse: bool = True) -> dict:
     """Export the generator to ONNX at ``path`` (atomically) and return the metadata written.
 
     Args:
@@ -107,6 +107,8 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
         metadata: model-card fields (JSON-serialisable values), e.g. ``points_per_ink``,
             ``dataset``, ``name``, ``description``; ``palette_sha256`` and ``palette_format``
             override the shipped palette's. The keys in :data:`EXPORTER_KEYS` are the exporter's.
+        fuse: export nearest up-sampling fused (:func:`patternshop_nn.networks.fuse_upsampling`); False keeps
+            the training graph (for comparisons).
 
     Raises:
         PatternshopError: unreadable checkpoint, or metadata that sets an exporter key.
@@ -115,7 +117,9 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
     taken = sorted(set(metadata) & set(EXPORTER_KEYS))
     if taken:
         raise PatternshopError(f"metadata keys {taken} are set by the exporter")
-    generator = fuse_upsampling(copy.deepcopy(load_generator(checkpoint_or_module))).eval()
+    generator = copy.deepcopy(load_generator(checkpoint_or_module)).eval()
+    if fuse:
+        fuse_upsampling(generator)
     props = {"palette_sha256": file_sha256(DEFAULT_PALETTE), "palette_format": FORMAT_VERSION, **metadata,
              "patternshop_format": FORMAT, "patternshop_version": package_version(), "exported": utc_now(),
              "raster_function": RASTER_FUNCTION, "raster_size": RASTER_SIZE,

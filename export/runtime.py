@@ -21,8 +21,10 @@
    BORDER_PX)``, the rest is empty. Without the mirror, the network saw the
    pattern end at the domain's border and darkened a rim there (it learnt the
    synthesiser's thinner borders).
-3. **Run and crop back.** The network is fully convolutional; its output is
-   cropped to the domain, decoded (L = 100 x channel 0, a, b = 255 x channels
+3. **Run and crop back.** The network is fully convolutional; :func:`infer_map`
+   averages its outputs over the 8 symmetries of the square (each flipped or
+   transposed raster's output turned back; :func:`points_to_map`: one run);
+   the output is cropped to the domain, decoded (L = 100 x channel 0, a, b = 255 x channels
    1-2 - 128) and resampled to the requested width (default: 256 px on the
    long side, the training maps' resolution).
 
@@ -60,6 +62,8 @@ INPUT_NAME = "raster"
 OUTPUT_NAME = "map"
 SIZE_MULTIPLE = 64  # raster sides must be multiples of 2**levels of the U-Net (6 levels)
 BORDER_PX = 32  # raster pixels of mirrored pattern around the domain (the network sees no edge of the points there)
+SYMMETRIES = (1, 4, 8)  # readings averaged over this many symmetries of the square (1: none, 4: flips, 8: and transposes)
+DEFAULT_SYMMETRIES = 8
 
 PathLike = str | os.PathLike
 
@@ -209,7 +213,8 @@ def points_to_map(points: PointSet, model: OnnxModel, width: int | None = None,
     pattern's own scale (the synthesiser's convention). Warns (:class:`PatternshopWarning`) when the pattern
     holds more points than that.
     """
-    return infer_map(points, model, width, ScaleChoice(points_per_ink, False), fill_thin=False, calibrate=False).lab_map
+    return infer_map(points, model, width, ScaleChoice(points_per_ink, False), fill_thin=False, calibrate=False,
+                     symmetries=1).lab_map
 
 
 @dataclass(frozen=True)
@@ -219,7 +224,7 @@ class Inference:
     ``output`` is the network's raw output over the domain (3, hR, wR) in [0, 1] of the main reading,
     ``pixels_per_unit`` its raster's pixels per unit of the domain (R). ``zooms`` are the readings made for correlation (1: the main one only), ``zoomed_share``
     the share of the map whose a, b came from a zoomed reading, ``calibration`` the ink factor applied
-    (None: the network's L as it came).
+    (None: the network's L as it came), ``symmetries`` how many symmetries each reading averaged.
     """
 
     lab_map: LabMap
@@ -230,17 +235,49 @@ class Inference:
     zooms: tuple[int, ...] = (1,)
     zoomed_share: float = 0.0
     calibration: float | None = None
+    symmetries: int = 1
 
     def report(self) -> dict:
-        return {"width": self.lab_map.width, "height": self.lab_map.height, **self.scale.report(), **self.evidence.report(),
+        return {"width": self.lab_map.width, "height": self.lab_map.height, "symmetries": self.symmetries,
+                **self.scale.report(), **self.evidence.report(),
                 "correlation_zooms": list(self.zooms), "zoomed_share": round(self.zoomed_share, 4),
                 "ink_calibration_factor": None if self.calibration is None else round(self.calibration, 4)}
 
 
-def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shape: tuple[int, int]) -> tuple[LabMap, np.ndarray, float]:
-    """(map resampled to ``shape`` (H, W), raw output over the domain (3, hR, wR), pixels per unit R): one reading."""
+def dihedral(array: np.ndarray, code: int, inverse: bool = False) -> np.ndarray:
+    """One of the 8 symmetries of the square on the last two axes of ``array`` (..., S, S): bit 0 of ``code``
+    flips x, bit 1 flips y, bit 2 transposes (in that order; ``inverse`` undoes it)."""
+    if inverse and code & 4:
+        array = np.swapaxes(array, -1, -2)
+    if code & 1:
+        array = array[..., ::-1]
+    if code & 2:
+        array = array[..., ::-1, :]
+    if not inverse and code & 4:
+        array = np.swapaxes(array, -1, -2)
+    return array
+
+
+def predict_symmetric(model: OnnxModel, raster: np.ndarray, symmetries: int = DEFAULT_SYMMETRIES) -> np.ndarray:
+    """(3, S, S) the network's output for a raster (S, S), averaged over ``symmetries`` (:data:`SYMMETRIES`)
+    symmetries of the square: each transformed raster's output transformed back. The network was trained on
+    all 8 (``data.augment``); averaging cancels what of its response is not symmetric (noise read as
+    structure). One raster per run, so memory stays that of one reading."""
+    if symmetries not in SYMMETRIES:
+        raise PatternshopError(f"symmetries must be one of {', '.join(map(str, SYMMETRIES))}, got {symmetries}")
+    total = np.zeros((3, *raster.shape), np.float64)
+    for code in range(symmetries):
+        output = model.predict(np.ascontiguousarray(dihedral(raster, code))[None, None])[0]
+        total += dihedral(output, code, inverse=True)
+    return (total / symmetries).astype(np.float32)
+
+
+def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shape: tuple[int, int],
+                 symmetries: int = DEFAULT_SYMMETRIES) -> tuple[LabMap, np.ndarray, float]:
+    """(map resampled to ``shape`` (H, W), raw output over the domain (3, hR, wR), pixels per unit R): one reading,
+    averaged over ``symmetries`` (:func:`predict_symmetric`)."""
     raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink)
-    output = domain_crop(model.predict(raster[None, None])[0], points.domain, pixels_per_unit)
+    output = domain_crop(predict_symmetric(model, raster, symmetries), points.domain, pixels_per_unit)
     lab_map = LabMap.from_network(output)
     lab_map = resize(lab_map, shape[1]) if shape[1] != lab_map.width else lab_map
     if lab_map.L.shape != shape:
@@ -249,7 +286,7 @@ def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shap
 
 
 def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
-              fill_thin: bool = True, calibrate: bool = True) -> Inference:
+              fill_thin: bool = True, calibrate: bool = True, symmetries: int = DEFAULT_SYMMETRIES) -> Inference:
     """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
 
     Args:
@@ -263,6 +300,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
             them where the evidence stays thin by the surrounding well-observed a, b.
         calibrate: scale the ink to the pattern's point count (:func:`export.evidence.calibrate_density`);
             False keeps the network's L.
+        symmetries: readings averaged over this many symmetries of the square (:func:`predict_symmetric`).
     """
     scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
     if not scale.automatic:
@@ -271,7 +309,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
             warnings.warn(message, PatternshopWarning, stacklevel=2)
     width_px = map_width(points.domain, model, width)
     shape = (max(1, round(width_px * points.domain[1] / points.domain[0])), width_px)
-    lab_map, output, pixels_per_unit = read_pattern(points, model, scale.points_per_ink, shape)
+    lab_map, output, pixels_per_unit = read_pattern(points, model, scale.points_per_ink, shape, symmetries)
     density, factor = lab_map.density(), None
     if calibrate:
         density, factor = calibrate_density(density, len(points) / scale.points_per_ink)
@@ -283,7 +321,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
         zooms = zoom_levels(zoom)
         ab_readings, evidence_readings = [ab], [evidence]
         for f in zooms[1:]:
-            zoomed, _, zoomed_pixels_per_unit = read_pattern(points, model, scale.points_per_ink / f, shape)
+            zoomed, _, zoomed_pixels_per_unit = read_pattern(points, model, scale.points_per_ink / f, shape, symmetries)
             ab_readings.append(zoomed.ab.astype(np.float64))
             evidence_readings.append(local_evidence(points, shape, zoomed_pixels_per_unit))
         ab, evidence = blend_zoomed(zoom, zooms, ab_readings), blend_zoomed(zoom, zooms, evidence_readings)
@@ -293,7 +331,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
     if fill_thin:
         lab_map, source = fill_thin_correlation(lab_map, evidence)
     return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source), output, pixels_per_unit, zooms,
-                     zoomed_share, factor)
+                     zoomed_share, factor, symmetries)
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

@@ -51,7 +51,7 @@ from PIL import Image
 
 from data_gen.stipplers import METHODS, lloyd_stipple, poisson_disk
 from export.evidence import ScaleChoice
-from export.runtime import Inference, OnnxModel, infer_map
+from export.runtime import DEFAULT_SYMMETRIES, Inference, OnnxModel, infer_map
 from patternshop_nn.baselines import KDE_BANDWIDTHS, kde_density
 from synthesis.conventions import POINTS_PER_INK
 from synthesis.labmap import LabMap
@@ -88,6 +88,11 @@ STATIONARY: dict[str, tuple[Callable[[int, int], np.ndarray], str]] = {  # proce
     "jitter": (_generator("jitter"), "jitter"),
     "thomas": (_generator("red"), "red"),
 }
+
+
+def infer(points: PointSet, model: OnnxModel, fill: bool, scale: ScaleChoice | None = None) -> Inference:
+    """``infer``'s reading of a pattern (``fill``), or the network's alone: one run, no calibration, zoom or fill."""
+    return infer_map(points, model, scale=scale, fill_thin=fill, calibrate=fill, symmetries=DEFAULT_SYMMETRIES if fill else 1)
 
 
 def picture_density(name: str) -> tuple[np.ndarray, tuple[float, float]]:
@@ -155,7 +160,7 @@ def stipplings(model: OnnxModel, pictures: tuple[str, ...], seed: int, fill: boo
         for method in STIPPLERS:
             xy = METHODS[method](density, STIPPLE_POINTS, domain, np.random.default_rng(seed))
             scale = points_per_ink_of(len(xy), density)
-            lab_map = infer_map(PointSet(xy, domain), model, scale=ScaleChoice(scale, False), fill_thin=fill, calibrate=fill).lab_map
+            lab_map = infer(PointSet(xy, domain), model, fill, scale=ScaleChoice(scale, False)).lab_map
             truth = resample(density, lab_map.L.shape)
             truth_L = 100.0 * (1.0 - truth)
             ssim, mae = l_scores(truth_L, lab_map.L.astype(np.float64))
@@ -213,7 +218,7 @@ def stationary(model: OnnxModel, palette: Palette, densities: tuple[float, ...],
         for density in densities:
             n = round(density * POINTS_PER_INK)
             xy = make(n, seed)
-            inference = infer_map(PointSet(xy), model, fill_thin=fill, calibrate=fill)
+            inference = infer(PointSet(xy), model, fill)
             lab_map = inference.lab_map
             rows.append({"process": process, "preset": preset, "density": density, "n": len(xy),
                          "points_per_ink": round(inference.scale.points_per_ink), "automatic_scale": inference.scale.points_per_ink != POINTS_PER_INK,
@@ -242,12 +247,12 @@ def inventions(model: OnnxModel, palette: Palette, seed: int, synthesise: bool, 
     """Section 4: empty, one point, half-empty."""
     from synthesis.synthesize import point_count
 
-    empty = infer_map(PointSet(np.zeros((0, 2))), model, fill_thin=fill, calibrate=fill).lab_map
-    one = infer_map(PointSet(np.array([[0.5, 0.5]])), model, fill_thin=fill, calibrate=fill).lab_map
+    empty = infer(PointSet(np.zeros((0, 2))), model, fill).lab_map
+    one = infer(PointSet(np.array([[0.5, 0.5]])), model, fill).lab_map
     rng = np.random.default_rng(seed)
     half_n = round(0.5 * 0.5 * POINTS_PER_INK)
     half_xy = rng.random((half_n, 2)) * [0.5, 1.0]
-    half = infer_map(PointSet(half_xy), model, fill_thin=fill, calibrate=fill).lab_map
+    half = infer(PointSet(half_xy), model, fill).lab_map
     density = half.density()
     result = {"empty_min_L": round(float(empty.L.min()), 2), "empty_share_L97": round(float(np.mean(empty.L >= 97)), 4),
               "one_point_share_L95": round(float(np.mean(one.L >= 95)), 4),
@@ -268,7 +273,7 @@ def point_counts(model: OnnxModel, counts: tuple[int, ...], seed: int, fill: boo
     """Section 5: Poisson patterns of each count -> (count synthesize would make) / count (L only: a, b do not matter)."""
     rows = []
     for n in counts:
-        inference = infer_map(PointSet(np.random.default_rng([seed, n]).random((n, 2))), model, fill_thin=fill, calibrate=fill)
+        inference = infer(PointSet(np.random.default_rng([seed, n]).random((n, 2))), model, fill)
         made = synthesised_count(inference.lab_map, inference.scale.points_per_ink)
         rows.append({"n": n, "points_per_ink": round(inference.scale.points_per_ink), "synthesised": made, "ratio": round(made / n, 4)})
     return rows
@@ -372,7 +377,7 @@ def markdown(results: dict) -> str:
     """The results as markdown tables: targets, stipplings, stationary processes, point counts."""
     lines = [f"# Out-of-distribution evaluation: {results.get('model_name') or results['model']}", "",
              f"{'Quick' if results['quick'] else 'Full'} run, seed {results['seed']}, {results['seconds']} s, "
-             f"a,b {'as infer makes them (ink calibrated, light areas read zoomed, thin a,b filled)' if results['fill_thin'] else 'as the network gave them (--raw)'}.", "",
+             f"a,b {'as infer makes them (8 symmetries averaged, ink calibrated, light areas read zoomed, thin a,b filled)' if results['fill_thin'] else 'as the network gave them (--raw)'}.", "",
              "| figure | target | measured | met |", "|---|---|---|---|"]
     lines += [f"| {t['figure']} | {t['target']} | {t['measured']} | {'yes' if t['met'] else 'no'} |" for t in results["targets"]]
     lines += ["", "## Stipplings (L against the picture)", "",

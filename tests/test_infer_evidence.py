@@ -162,3 +162,20 @@ def test_infer_keeps_the_point_count_and_reads_light_patterns_zoomed(tiny_model:
         assert report["correlation_zooms"] == list(inference.zooms) and report["ink_calibration_factor"] > 0
     raw = infer_map(PointSet(generate("white", 3_000, seed=7)), model, fill_thin=False, calibrate=False)
     assert raw.zooms == (1,) and raw.calibration is None
+
+
+def test_symmetric_reading_is_equivariant(tiny_model: Path) -> None:
+    """Averaged over the 8 symmetries, the reading of a flipped or transposed raster is the flipped or transposed
+    reading (exactly, up to float rounding); one symmetry is the plain network run."""
+    from export.runtime import OnnxModel, dihedral, predict_symmetric
+
+    model = OnnxModel(tiny_model)
+    raster = np.random.default_rng(8).random((128, 128), dtype=np.float32) * 0.3
+    for code in range(8):
+        np.testing.assert_array_equal(dihedral(dihedral(raster, code), code, inverse=True), raster)
+    averaged = predict_symmetric(model, raster, 8)
+    for code in (1, 2, 4, 7):
+        turned = predict_symmetric(model, np.ascontiguousarray(dihedral(raster, code)), 8)
+        np.testing.assert_allclose(turned, dihedral(averaged, code), atol=1e-5)
+    np.testing.assert_allclose(predict_symmetric(model, raster, 1), model.predict(raster[None, None])[0], atol=1e-7)
+    assert np.abs(predict_symmetric(model, raster, 4) - averaged).max() > 1e-4  # 4 and 8 differ on a generic network

@@ -47,6 +47,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        "correlation (default: both)")
     infer.add_argument("--no-calibrate", action="store_true",
                        help="keep the network's L (default: ink scaled so that the map holds the pattern's point count)")
+    infer.add_argument("--symmetries", type=int, choices=(1, 4, 8), default=8,
+                       help="average the network's readings over this many symmetries of the square: 8 (default) flips and "
+                       "transposes, 4 flips only, 1 a single run (8 times faster)")
     infer.add_argument("--report", metavar="JSON", help="write a JSON report (points per ink chosen, evidence shares, ...)")
     add_threads_option(infer)
     infer.set_defaults(func=run_infer)
@@ -93,7 +96,7 @@ def run_infer(args: argparse.Namespace) -> None:
     check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
                  f"inferring a {width} px wide map from a {side}x{side} px raster ({scale.points_per_ink:g} points per ink)")
     inference = infer_map(points, model, width=args.width, scale=scale, fill_thin=not args.no_fill,
-                          calibrate=not args.no_calibrate)
+                          calibrate=not args.no_calibrate, symmetries=args.symmetries)
     report = {"points": args.points, "n": len(points), "model": str(model.path), "output": str(output), **inference.report()}
     with all_or_nothing():
         write_map(inference.lab_map, output, bits=args.bits)
