@@ -217,7 +217,9 @@ def _deviation(scale: WindowScale, squares: np.ndarray, radii: np.ndarray) -> np
     """
     growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
     factor = CUMULATIVE_VARIANCE[0] + growth * (radii + (radii[1] - radii[0]))
-    return np.sqrt(factor * squares + VARIANCE_FLOOR).astype(np.float32)
+    # the sums of a^2 V can come out slightly negative in float32 where a window's expected counts are ~0 (a map
+    # lightened to a few dozen points): clamped, or the square root's NaN spreads into the points' positions
+    return np.sqrt(np.maximum(factor * squares, 0.0) + VARIANCE_FLOOR).astype(np.float32)
 
 
 def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None,

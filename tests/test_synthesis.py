@@ -299,3 +299,26 @@ def test_local_errors_are_per_window_with_centres_inside_the_map():
     w, h = lab_map.domain
     assert np.all((centres >= 0) & (centres <= [w, h])) and np.all(np.isfinite(errors))
     assert np.ptp(centres[:, 0]) > 0.5 * w  # windows spread over the map, not all at one place
+
+
+def test_window_deviation_stays_finite_when_float_sums_dip_below_zero():
+    from synthesis.edgepcf import WINDOW_SCALES, _deviation
+
+    radii = np.linspace(0.1, 3.0, 8)
+    squares = np.full((2, 8), -1.0, np.float32)  # sums of a^2 V that came out negative (windows expecting ~0 points)
+    for scale in WINDOW_SCALES:
+        assert np.isfinite(_deviation(scale, squares, radii)).all()
+
+
+def test_synthesis_of_a_map_lightened_to_a_few_dozen_points():
+    """A training item (procedural, sparse variant, 28 points) whose window variances once came out NaN."""
+    from data_gen.makers import build_maker
+    from data_gen.pairs import PairSettings, make_pair
+    from data_gen.provenance import compose_config
+
+    cfg = compose_config("pairs", ["dataset=procedural", "num_items=2000", "other_methods.share=0.35", "sparse.share=0.25",
+                                   "sparse.empty_share=0.03"])
+    settings = PairSettings.from_config(cfg)
+    pair = make_pair(settings, build_maker(settings.dataset, settings.map_size, settings.palette), 1814)
+    assert pair.meta[0]["method"] == "synthesis" and 10 <= len(pair.points) <= 60
+    assert np.isfinite(pair.points).all()
