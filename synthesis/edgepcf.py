@@ -387,7 +387,8 @@ def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
     windows' centres (W, 2) (their members' weighted mean positions, map units).
 
     The map's target PCFs come from ``palette`` (default: the shipped one); ``n``
-    sets the map's point spacing (default: the pattern's own count).
+    sets the map's point spacing (default: the pattern's own count). Windows without points (where the map
+    has ink and the pattern none) have no PCF and are left out.
     """
     from synthesis.palette import load_palette
 
@@ -400,4 +401,5 @@ def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
     target = windows.aggregate(hood.expected()) / poisson
     sums = windows.aggregate(np.concatenate([points, np.ones((len(points), 1))], axis=1))  # (W, 3): weighted x, y, weight
     centres = sums[:, :2] / np.maximum(sums[:, 2:], 1e-300)
-    return np.abs(observed - target).mean(axis=1), centres
+    populated = np.all(poisson > 0, axis=1)
+    return np.abs(observed - target).mean(axis=1)[populated], centres[populated]

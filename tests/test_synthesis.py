@@ -301,6 +301,16 @@ def test_local_errors_are_per_window_with_centres_inside_the_map():
     assert np.ptp(centres[:, 0]) > 0.5 * w  # windows spread over the map, not all at one place
 
 
+def test_local_errors_leave_out_windows_without_points():
+    """A pattern that leaves half of an inked map empty: the empty half's windows have no PCF (once NaN)."""
+    lab_map = preset_map("blue")
+    xy = inhomogeneous_poisson(lab_map, 800, 0)
+    left = xy[xy[:, 0] < 0.5 * lab_map.domain[0]]
+    errors, centres = local_errors(lab_map, left, len(xy))
+    assert len(errors) > 3 and np.all(np.isfinite(errors))
+    assert np.all(centres[:, 0] < 0.5 * lab_map.domain[0] + 0.1)
+
+
 def test_window_deviation_stays_finite_when_float_sums_dip_below_zero():
     from synthesis.edgepcf import WINDOW_SCALES, _deviation
 
