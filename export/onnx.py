@@ -118,6 +118,7 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
     if taken:
         raise PatternshopError(f"metadata keys {taken} are set by the exporter")
     generator = copy.deepcopy(load_generator(checkpoint_or_module)).eval()
+    parameters = sum(p.numel() for p in generator.parameters())  # the trained net's (fusing turns its up-convolutions into buffers)
     if fuse:
         fuse_upsampling(generator)
     props = {"palette_sha256": file_sha256(DEFAULT_PALETTE), "palette_format": FORMAT_VERSION, **metadata,
@@ -125,7 +126,7 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
              "raster_function": RASTER_FUNCTION, "raster_size": RASTER_SIZE,
              "generator": {"class": type(generator).__name__, "levels": getattr(generator, "levels", None),
                            "upsample": getattr(generator, "upsample", None),
-                           "parameters": sum(p.numel() for p in generator.parameters())}}
+                           "parameters": parameters}}
     example = torch.zeros(1, 1, RASTER_SIZE, RASTER_SIZE)
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), torch.no_grad():

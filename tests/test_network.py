@@ -348,6 +348,7 @@ def test_resize_convolution_exports_with_dynamic_sizes(tmp_path: Path) -> None:
     net = DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest").eval()
     props = export_onnx(net, tmp_path / "resize.onnx")
     assert props["generator"]["upsample"] == "nearest"
+    assert props["generator"]["parameters"] == sum(p.numel() for p in net.parameters())  # the trained net's, not the fused graph's
     rasters = np.random.default_rng(0).random((1, 1, 192, 192), dtype=np.float32)
     assert max_abs_difference(net, tmp_path / "resize.onnx", rasters) <= 1e-4
 
