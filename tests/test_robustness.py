@@ -191,9 +191,12 @@ def test_ctrl_c_stops_convert_resynthesize_with_two_workers(tmp_path):
     maps.mkdir()
     for i in range(6):
         (maps / f"m{i}.tif").write_bytes(LOGO_MAP.read_bytes())
+    # a terminal's Ctrl+C reaches a program that handles SIGINT; a test runner started in the background ignores
+    # SIGINT, and the child would inherit that (Python then installs no KeyboardInterrupt handler)
     process = subprocess.Popen([sys.executable, "-m", "patternshop", "convert", str(maps), str(out), "--resynthesize",
                                 "--workers", "2", "--points", "20000", "--no-progress"],
-                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+                               stderr=subprocess.PIPE, text=True, start_new_session=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         time.sleep(5.0)  # workers started (about 1 s each) and synthesising (about 10 s per map)
         before = {p.name for p in out.glob("*.txt")}
