@@ -217,8 +217,9 @@ def _deviation(scale: WindowScale, squares: np.ndarray, radii: np.ndarray) -> np
     """
     growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
     factor = CUMULATIVE_VARIANCE[0] + growth * (radii + (radii[1] - radii[0]))
-    # the sums of a^2 V can come out slightly negative in float32 where a window's expected counts are ~0 (a map
-    # lightened to a few dozen points): clamped, or the square root's NaN spreads into the points' positions
+    # guard: for a map lightened to 28 points (training item 1814; its windows reach beyond the domain) these sums
+    # came out negative (down to -57) although each a^2 V should be >= 0; the cause upstream is not found yet.
+    # Clamped here, or the square root's NaN spreads into the points' positions.
     return np.sqrt(np.maximum(factor * squares, 0.0) + VARIANCE_FLOOR).astype(np.float32)
 
 
