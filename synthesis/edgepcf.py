@@ -217,10 +217,9 @@ def _deviation(scale: WindowScale, squares: np.ndarray, radii: np.ndarray) -> np
     """
     growth = CUMULATIVE_VARIANCE[1] if scale.dead_zone else 0.0
     factor = CUMULATIVE_VARIANCE[0] + growth * (radii + (radii[1] - radii[0]))
-    # guard: for a map lightened to 28 points (training item 1814; its windows reach beyond the domain) these sums
-    # came out negative (down to -57) although each a^2 V should be >= 0: the tracked ring denominators of some points
-    # went negative (min -0.68; DenominatorTracker, not yet fixed at the source). Clamped here, or the square root's
-    # NaN spreads into the points' positions.
+    # guard: each a^2 V is >= 0 once DenominatorTracker keeps its carried denominators >= 0; before that, a map
+    # lightened to 28 points (training item 1814) gave sums down to -57 and the square root's NaN spread into the
+    # points' positions
     return np.sqrt(np.maximum(factor * squares, 0.0) + VARIANCE_FLOOR).astype(np.float32)
 
 

@@ -429,4 +429,5 @@ class DenominatorTracker:
         self.slot, self.values, self.slopes = slot, new_values, new_slopes
         slopes64 = new_slopes.astype(np.float64)
         current = new_values + np.einsum("kjd,kd->kj", slopes64, xy[stored] - self.anchor[stored])
+        np.maximum(current, 0.0, out=current)  # an expected count: the linear carry overshot below 0 (min -0.68 on a 28-point map)
         return Denominators(self.fields.exact_denominator, slot, current, slopes64)

@@ -320,8 +320,19 @@ def test_window_deviation_stays_finite_when_float_sums_dip_below_zero():
         assert np.isfinite(_deviation(scale, squares, radii)).all()
 
 
-def test_synthesis_of_a_map_lightened_to_a_few_dozen_points():
-    """A training item (procedural, sparse variant, 28 points) whose window variances once came out NaN."""
+def test_synthesis_of_a_map_lightened_to_a_few_dozen_points(monkeypatch):
+    """A training item (procedural, sparse variant, 28 points) whose carried denominators once went negative
+    (min -0.68) and its window variances NaN."""
+    from synthesis.fields import DenominatorTracker
+
+    update, lowest = DenominatorTracker.update, []
+
+    def recorded(self, xy):
+        denominators = update(self, xy)
+        lowest.append(float(denominators.values.min()) if denominators.values.size else 0.0)
+        return denominators
+
+    monkeypatch.setattr(DenominatorTracker, "update", recorded)
     from data_gen.makers import build_maker
     from data_gen.pairs import PairSettings, make_pair
     from data_gen.provenance import compose_config
@@ -332,3 +343,4 @@ def test_synthesis_of_a_map_lightened_to_a_few_dozen_points():
     pair = make_pair(settings, build_maker(settings.dataset, settings.map_size, settings.palette), 1814)
     assert pair.meta[0]["method"] == "synthesis" and 10 <= len(pair.points) <= 60
     assert np.isfinite(pair.points).all()
+    assert lowest and min(lowest) >= 0.0  # expected counts
