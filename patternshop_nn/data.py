@@ -9,7 +9,10 @@ convolutional, density and correlation are local, and a 128-pixel crop costs a
 quarter of a full raster, so a CPU sees four times as many pairs per hour.
 
 The validation split is fixed by item number (every ``round(1/val_fraction)``-th
-item), so it stays the same when more pairs are added to the folder.
+item), so it stays the same when more pairs are added to the folder. Extra
+folders (``extra_pairs_dirs``, e.g. other methods' stipplings made with another
+seed) add training pairs only: validation and its baselines stay those of
+``pairs_dir``, so runs with and without them compare on the same pairs.
 """
 
 from __future__ import annotations
@@ -79,13 +82,15 @@ def split_items(items: np.ndarray, val_fraction: float) -> tuple[np.ndarray, np.
 
 
 class PairDataModule(L.LightningDataModule):
-    """Train/validation loaders over one pair folder (loaded into memory: ~330 kB per 256 x 256 pair)."""
+    """Train/validation loaders over a pair folder and optional training-only extra folders (loaded into memory:
+    ~330 kB per 256 x 256 pair)."""
 
     def __init__(self, pairs_dir: str | Path, batch_size: int = 8, val_fraction: float = 0.05, augment: bool = True, crop: int | None = None,
                  num_workers: int = 0, max_val_items: int | None = 32, baselines: bool = True,
-                 baseline_cells: int = 4) -> None:
+                 baseline_cells: int = 4, extra_pairs_dirs: list[str | Path] | tuple = ()) -> None:
         super().__init__()
         self.pairs_dir = Path(pairs_dir)
+        self.extra_pairs_dirs = [Path(folder) for folder in extra_pairs_dirs]
         self.batch_size, self.val_fraction, self.augment, self.crop = batch_size, val_fraction, augment, crop
         self.num_workers, self.max_val_items = num_workers, max_val_items
         self.baselines, self.baseline_cells = baselines, baseline_cells
@@ -95,20 +100,22 @@ class PairDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.pairs is not None:
             return
-        self.pairs = load_pairs(self.pairs_dir)
-        train, val = split_items(self.pairs.item, self.val_fraction)
+        from synthesis.errors import PatternshopError
+
+        main = load_pairs(self.pairs_dir)
+        train, val = split_items(main.item, self.val_fraction)
         if self.max_val_items is not None:
             val = val[: self.max_val_items]
         if len(train) == 0 or len(val) == 0:
-            from synthesis.errors import PatternshopError
-
-            raise PatternshopError(f"{self.pairs_dir}: {len(self.pairs)} pairs are too few for a train/validation split "
+            raise PatternshopError(f"{self.pairs_dir}: {len(main)} pairs are too few for a train/validation split "
                                    f"at val_fraction={self.val_fraction}")
-        if self.pairs.raster.shape[-1] != self.pairs.target.shape[-2]:
-            from synthesis.errors import PatternshopError
-
-            raise PatternshopError(f"{self.pairs_dir}: rasters are {self.pairs.raster.shape[-1]} px but maps "
-                                   f"{self.pairs.target.shape[-2]} px; make pairs with map_size = raster_size")
+        folders = [(self.pairs_dir, main)] + [(folder, load_pairs(folder)) for folder in self.extra_pairs_dirs]
+        for folder, pairs in folders:
+            if pairs.raster.shape[-1] != pairs.target.shape[-2] or pairs.raster.shape[-1] != main.raster.shape[-1]:
+                raise PatternshopError(f"{folder}: rasters are {pairs.raster.shape[-1]} px and maps {pairs.target.shape[-2]} px; "
+                                       f"make pairs with map_size = raster_size = {main.raster.shape[-1]}")
+        self.pairs = Pairs.concatenate([pairs for _, pairs in folders]) if len(folders) > 1 else main
+        train = np.concatenate([train, np.arange(len(main), len(self.pairs))])  # extra folders: training only
         self.train_set = PairDataset(self.pairs, train, augment=self.augment, crop=self.crop)
         self.val_set = PairDataset(self.pairs, val)
         if self.baselines:

@@ -89,7 +89,7 @@ def train(cfg: DictConfig) -> dict:
     datamodule = PairDataModule(data.pairs_dir, batch_size=int(data.batch_size), val_fraction=float(data.val_fraction),
                                 augment=bool(data.augment), crop=data.crop, num_workers=int(data.num_workers),
                                 max_val_items=data.max_val_items, baselines=bool(data.baselines),
-                                baseline_cells=int(data.baseline_cells))
+                                baseline_cells=int(data.baseline_cells), extra_pairs_dirs=list(data.get("extra_pairs_dirs") or ()))
     model = hydra.utils.instantiate(cfg.model, _convert_="all")
     if cfg.get("init_from"):
         load_weights(model, Path(cfg.init_from))

@@ -146,6 +146,29 @@ def test_datamodule_and_cached_baselines(pair_dir: Path) -> None:
     assert cached["metrics"] == metrics
 
 
+def test_extra_pair_folders_add_training_pairs_only(pair_dir: Path, tmp_path: Path) -> None:
+    extra = tmp_path / "extra"
+    generate(compose_config("pairs", [f"out_dir={extra}", "num_items=4", "workers=1", "map_size=64", "raster_size=64", "seed=1",
+                                      "synthesis.points_per_ink=1500", "other_methods.share=1.0"]))
+    plain = PairDataModule(pair_dir, batch_size=2, val_fraction=0.25, baselines=False)
+    plain.setup("fit")
+    module = PairDataModule(pair_dir, batch_size=2, val_fraction=0.25, baselines=False, extra_pairs_dirs=[extra])
+    module.setup("fit")
+    assert len(module.train_set) == len(plain.train_set) + 4
+    assert np.array_equal(module.val_set.indices, plain.val_set.indices)  # validation: pairs_dir's alone
+    extra_pairs = load_pairs(extra)
+    extra_positions = module.train_set.indices[-4:]
+    assert np.array_equal(module.pairs.target[extra_positions], extra_pairs.target)
+    assert np.array_equal(module.pairs.raster[extra_positions], extra_pairs.raster)
+    small = tmp_path / "small"
+    generate(compose_config("pairs", [f"out_dir={small}", "num_items=2", "workers=1", "map_size=32", "raster_size=32",
+                                      "synthesis.points_per_ink=400", "other_methods.share=1.0"]))
+    from synthesis.errors import PatternshopError
+
+    with pytest.raises(PatternshopError, match="raster_size = 64"):
+        PairDataModule(pair_dir, batch_size=2, val_fraction=0.25, baselines=False, extra_pairs_dirs=[small]).setup("fit")
+
+
 # --- baselines -------------------------------------------------------------------
 def test_kde_recovers_a_flat_density() -> None:
     rng = np.random.default_rng(0)
