@@ -26,6 +26,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from data_gen.shards import Pairs, load_pairs
 from patternshop_nn.baselines import cached_baselines
+from synthesis.errors import PatternshopError
 
 
 def dihedral(tensor: torch.Tensor, code: int) -> torch.Tensor:
@@ -100,8 +101,6 @@ class PairDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.pairs is not None:
             return
-        from synthesis.errors import PatternshopError
-
         main = load_pairs(self.pairs_dir)
         train, val = split_items(main.item, self.val_fraction)
         if self.max_val_items is not None:

@@ -398,10 +398,10 @@ def local_errors(lab_map: LabMap, points: np.ndarray, n: int | None = None,
     hood = find_neighbourhoods(fields, points)
     windows = hood.windows[0]
     poisson = windows.aggregate(fields.denominator_at(points))
-    with np.errstate(invalid="ignore", divide="ignore"):  # windows without points: 0 / 0, left out below
-        observed = windows.aggregate(pair_counts_reference(points, hood)) / poisson
-        target = windows.aggregate(hood.expected()) / poisson
-    sums = windows.aggregate(np.concatenate([points, np.ones((len(points), 1))], axis=1))  # (W, 3): weighted x, y, weight
+    populated = np.all(poisson > 0, axis=1)  # windows without points: no PCF (0 / 0)
+    poisson = poisson[populated]
+    observed = windows.aggregate(pair_counts_reference(points, hood))[populated] / poisson
+    target = windows.aggregate(hood.expected())[populated] / poisson
+    sums = windows.aggregate(np.concatenate([points, np.ones((len(points), 1))], axis=1))[populated]  # (W, 3): weighted x, y, weight
     centres = sums[:, :2] / np.maximum(sums[:, 2:], 1e-300)
-    populated = np.all(poisson > 0, axis=1)
-    return np.abs(observed - target).mean(axis=1)[populated], centres[populated]
+    return np.abs(observed - target).mean(axis=1), centres
