@@ -29,6 +29,10 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
   ``sparse.scale`` and up to ``sparse.holes`` empty discs cut out of it; with
   ``sparse.empty_share`` > 0, that share of the items is empty (no points, a
   white map). Both at 0 (the default): items and config keys as before.
+* Dark content (issue 14): with ``dense.share`` > 0, that share of the other
+  maps is darkened towards full ink, ``1 - density`` multiplied by a factor
+  drawn log-uniformly in ``dense.scale``, so that nearly full ink, rare in the
+  procedural pictures, is seen. At 0 (the default) items and keys as before.
 
 Settings: ``conf/pairs.yaml`` and ``conf/dataset/*.yaml``; any value can be
 overridden (``workers=2 synthesis.points_per_ink=50000 out_dir=/data/pairs``).
@@ -74,6 +78,7 @@ class PairSettings:
     palette: str | None  # None: the shipped palette
     other_methods: dict  # {"share": float in [0, 1], "methods": {name: weight}} (see the module docstring)
     sparse: dict  # {"share", "scale": [lo, hi], "holes", "empty_share"} (see the module docstring)
+    dense: dict  # {"share", "scale": [lo, hi]} (see the module docstring)
 
     @classmethod
     def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
@@ -84,7 +89,8 @@ class PairSettings:
                        raster_size=int(cfg.raster_size), chunk=int(cfg.chunk), points_per_ink=float(cfg.synthesis.points_per_ink),
                        schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette,
                        other_methods=other_methods_setting(OmegaConf.to_container(cfg.get("other_methods") or {}, resolve=True)),
-                       sparse=sparse_setting(OmegaConf.to_container(cfg.get("sparse") or {}, resolve=True)))
+                       sparse=sparse_setting(OmegaConf.to_container(cfg.get("sparse") or {}, resolve=True)),
+                       dense=dense_setting(OmegaConf.to_container(cfg.get("dense") or {}, resolve=True)))
         except (TypeError, ValueError) as exc:  # e.g. map_size=big: a user error, one line like the others
             raise PatternshopError(f"bad pair setting: {exc}") from exc
 
@@ -101,6 +107,8 @@ class PairSettings:
             del content["other_methods"]
         if not (self.sparse["share"] or self.sparse["empty_share"]):
             del content["sparse"]
+        if not self.dense["share"]:
+            del content["dense"]
         return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -132,10 +140,22 @@ def sparse_setting(config: dict) -> dict:
     return {"share": share, "scale": [low, high], "holes": holes, "empty_share": empty_share}
 
 
-def sparse_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> LabMap:
-    """The map, lightened and holed for a share of the items, emptied for another (see the module docstring).
+def dense_setting(config: dict) -> dict:
+    """``dense`` config -> {"share", "scale"} checked (share in [0, 1], 0 < lo <= hi <= 1)."""
+    share = float(config.get("share", 0.0))
+    low, high = (float(value) for value in config.get("scale", (0.05, 0.5)))
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"dense.share must be in [0, 1], got {share:g}")
+    if not 0.0 < low <= high <= 1.0:
+        raise ValueError(f"dense.scale needs 0 < lo <= hi <= 1, got [{low:g}, {high:g}]")
+    return {"share": share, "scale": [low, high]}
 
-    Draws from ``rng`` only when ``sparse.share`` or ``sparse.empty_share`` is > 0.
+
+def density_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> LabMap:
+    """The map, lightened and holed for a share of the items, emptied for another, darkened for a third
+    (see the module docstring).
+
+    Draws from ``rng`` only when ``sparse.share``, ``sparse.empty_share`` or ``dense.share`` is > 0.
     """
     options = settings.sparse
     density = None
@@ -148,6 +168,9 @@ def sparse_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Gener
         for _ in range(int(rng.integers(0, options["holes"] + 1))):
             (row, col), radius = rng.random(2) * density.shape, rng.uniform(0.05, 0.25) * max(density.shape)
             density[(rows - row) ** 2 + (cols - col) ** 2 < radius**2] = 0.0
+    elif settings.dense["share"] and rng.random() < settings.dense["share"]:
+        low, high = settings.dense["scale"]
+        density = 1.0 - (1.0 - lab_map.density()) * np.exp(rng.uniform(np.log(low), np.log(high)))
     if density is None:
         return lab_map
     return target_to_map(map_to_target(LabMap.from_density_latent(density, lab_map.latent())))  # 8-bit, as stored
@@ -180,7 +203,7 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
     from synthesis.synthesize import point_count, synthesize
 
     rng = np.random.default_rng([settings.seed, item])
-    lab_map = sparse_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
+    lab_map = density_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
     target = map_to_target(lab_map)
     try:
         n = point_count(lab_map, settings.points_per_ink)

@@ -639,6 +639,7 @@ def test_other_methods_share_zero_keeps_items_and_keys():
 
     assert settings().key() == settings("other_methods.methods={random: 2.0}").key() == settings("sparse.holes=5").key()
     assert settings().key() != settings("sparse.empty_share=0.1").key()
+    assert settings().key() == settings("dense.scale=[0.1,0.2]").key() != settings("dense.share=0.5").key()
     assert settings().key() != settings("other_methods.share=0.5").key()
     with pytest.raises(PatternshopError, match="unknown other_methods.methods"):
         settings("other_methods.share=0.5", "+other_methods.methods.voronoi=1")
@@ -663,3 +664,18 @@ def test_sparse_items_are_light_holed_or_empty(tmp_path):
         assert len(empty.points_of(k)) == 0 and not empty.raster[k].any() and np.all(empty.target[k][..., 0] == 255)
     with pytest.raises(PatternshopError, match="sparse.scale"):
         PairSettings.from_config(compose_config("pairs", ["sparse.share=0.5", "sparse.scale=[0.5,0.1]"]))
+
+
+def test_dense_items_are_darkened_towards_full_ink(tmp_path):
+    """dense.share=1 darkens every map: 1 - density x 0.05-0.5, so each item holds at least half as much ink again."""
+    base = ["workers=1", "map_size=64", "raster_size=64", "synthesis.points_per_ink=1500", "num_items=4",
+            "other_methods.share=1.0"]
+    generate(compose_config("pairs", [f"out_dir={tmp_path / 'plain'}", *base]))
+    generate(compose_config("pairs", [f"out_dir={tmp_path / 'dark'}", *base, "dense.share=1.0"]))
+    plain, dark = load_pairs(tmp_path / "plain"), load_pairs(tmp_path / "dark")
+    light_of = {int(i): t[..., 0].astype(float) / 255 for i, t in zip(plain.item, plain.target, strict=True)}
+    assert len(dark.item) == 4
+    for i, t in zip(dark.item, dark.target, strict=True):  # lightness x 0.05-0.5 (8-bit rounding)
+        assert t[..., 0].mean() / 255 <= 0.5 * light_of[int(i)].mean() + 0.01
+    with pytest.raises(PatternshopError, match="dense.scale"):
+        PairSettings.from_config(compose_config("pairs", ["dense.share=0.5", "dense.scale=[0.5,0.1]"]))
