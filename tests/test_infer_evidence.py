@@ -91,9 +91,9 @@ def test_infer_chooses_reports_and_keeps_an_override(tiny_model: Path, tmp_path:
     assert json.loads(report.read_text())["points_per_ink"] == 60_000
     status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "s.tif"), "--model", str(tiny_model), "--report", str(report)], capsys)
     assert status == 0 and "of the map has too few points to show correlation; its a,b were filled" in err
-    assert "ink scaled by" in err and "to hold the 30 points" in err and "read at fewer points per ink (4x, 16x, 64x)" in err
+    assert "ink scaled by" in err and "to hold the 30 points" in err and "read at fewer points per ink (2x, 4x, 8x, 16x, 32x, 64x)" in err
     sparse_report = json.loads(report.read_text())
-    assert sparse_report["thin_evidence_share"] > 0.5 and sparse_report["correlation_zooms"] == [1, 4, 16, 64]
+    assert sparse_report["thin_evidence_share"] > 0.5 and sparse_report["correlation_zooms"] == [1, 2, 4, 8, 16, 32, 64]
     status, _, err = run_cli(["infer", str(sparse), str(tmp_path / "c.tif"), "--model", str(tiny_model), "--no-calibrate",
                               "--report", str(report)], capsys)
     assert status == 0 and "ink scaled" not in err and json.loads(report.read_text())["ink_calibration_factor"] is None
@@ -142,11 +142,12 @@ def test_correlation_zoom_reads_light_areas_at_the_working_density() -> None:
     density = np.array([[1.0, WORK_DENSITY, WORK_DENSITY / 4, WORK_DENSITY / 10, 0.0]])
     zoom = correlation_zoom(density)
     assert zoom[0] == pytest.approx([1.0, 1.0, 4.0, 10.0, MAX_ZOOM])
-    assert zoom_levels(zoom) == (1, 4, 16, 64) and zoom_levels(zoom[:, :3]) == (1, 4) and zoom_levels(zoom[:, :2]) == (1,)
-    readings = [np.full((1, 5, 2), value) for value in (0.0, 4.0, 16.0, 64.0)]
-    blended = blend_zoomed(zoom, (1, 4, 16, 64), readings)
-    # exact at the levels, linear in log zoom between them: zoom 10 lies at log4(10) - 1 = 0.66 of the way from 4 to 16
-    assert blended[0, :, 0] == pytest.approx([0.0, 0.0, 4.0, 4.0 + 12.0 * (math.log(10, 4) - 1), 64.0])
+    levels = (1, 2, 4, 8, 16, 32, 64)
+    assert zoom_levels(zoom) == levels and zoom_levels(zoom[:, :3]) == (1, 2, 4) and zoom_levels(zoom[:, :2]) == (1,)
+    readings = [np.full((1, 5, 2), 0.0 if level == 1 else float(level)) for level in levels]
+    blended = blend_zoomed(zoom, levels, readings)
+    # exact at the levels, linear in log zoom between the two around it: zoom 10 lies at log2(10) - 3 = 0.32 of the way from 8 to 16
+    assert blended[0, :, 0] == pytest.approx([0.0, 0.0, 4.0, 8.0 + 8.0 * (math.log2(10) - 3), 64.0])
 
 
 def test_infer_keeps_the_point_count_and_reads_light_patterns_zoomed(tiny_model: Path) -> None:
