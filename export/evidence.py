@@ -26,7 +26,11 @@ Two measurements on the points alone, before and after the network:
    :func:`fill_thin_correlation` replaces a, b where the evidence is thin by
    a normalised convolution (Knutsson and Westin 1993) of the well-observed
    a, b around it, widening the kernel until every such pixel has well-observed
-   neighbours; L is never changed.
+   neighbours; L is never changed. A pixel without ink (density below
+   :data:`INKED_DENSITY`) counts as unobserved too, whatever its window holds:
+   its a, b only echoes the points around it (next to a half-empty pattern's
+   edge, the zoomed reading saw that edge as a cluster's border and painted the
+   empty half red; it now takes the inked half's colour).
 3. **Zoomed correlation** (:func:`correlation_zoom`). Correlation is a
    property of the pattern in units of its own spacing, density is not: a
    light area read as if the pattern held ``f`` times fewer points per ink
@@ -41,7 +45,9 @@ Two measurements on the points alone, before and after the network:
    default network names all five stationary processes right at apparent
    densities 0.3-1.2 (measured with seed 7, not the evaluation's seed), while
    jitter read below 0.3 drifts towards step (issue 14; zooms 1, 4, 16 around
-   0.4 mixed in readings at 0.1).
+   0.4 mixed in readings at 0.1). A pixel is zoomed as the densest pixel
+   within :data:`ZOOM_NEIGHBOURHOOD_PX` of it, so the light side of a density
+   edge is read at the dark side's scale.
 4. **Ink the points hold** (:func:`calibrate_density`). The pattern holds
    ``n`` points, so the map's mean density must be ``n / points_per_ink``
    (``synthesize``'s count): one factor over the network's ink restores it,
@@ -57,7 +63,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
+from scipy.ndimage import gaussian_filter, maximum_filter
 
 from synthesis.labmap import LabMap
 from synthesis.points import PointSet
@@ -71,9 +77,11 @@ MIN_EVIDENCE_POINTS = 6.0  # fewer points in it: correlation is not observable (
 EMPTY_EVIDENCE_POINTS = 0.5  # fewer: no points at all near the pixel (empty)
 FILL_SIGMAS_PX = (4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)  # normalised-convolution kernels tried, map pixels
 FILL_MIN_WEIGHT = 0.02  # mean confidence under a kernel needed to fill from it
+INKED_DENSITY = 0.01  # below this density a pixel's own a, b does not count (no pattern there to read); fully from twice it
 WORK_DENSITY = 0.6  # correlation is read where the apparent density reaches this (the default network is reliable at 0.3-1.2)
 ZOOM_STEP = 2  # zoomed readings at f = 2, 4, ... 64, so a blend of two never reads below WORK_DENSITY / 2 or above twice it
 MAX_ZOOM = 64  # at most this zoom (a raster 8 times smaller)
+ZOOM_NEIGHBOURHOOD_PX = 4  # map pixels: a pixel is zoomed as the densest pixel this near
 
 
 @dataclass(frozen=True)
@@ -170,19 +178,28 @@ class EvidenceSummary:
                 "filled_from_surroundings": self.filled, "well_observed_area": self.fill_source}
 
 
-def confidence(evidence: np.ndarray) -> np.ndarray:
-    """Weight in [0, 1] of the network's a, b: 0 below :data:`MIN_EVIDENCE_POINTS`, 1 from twice that, linear between."""
-    return np.clip(np.asarray(evidence, np.float64) / MIN_EVIDENCE_POINTS - 1.0, 0.0, 1.0)
+def confidence(evidence: np.ndarray, density: np.ndarray | None = None) -> np.ndarray:
+    """Weight in [0, 1] of the network's a, b: 0 below :data:`MIN_EVIDENCE_POINTS`, 1 from twice that, linear between;
+    times the same ramp of the map's ``density`` (H, W) in [0, 1] from :data:`INKED_DENSITY` where it is given,
+    so an area without ink, whose a, b only echoes the points around it, is filled too."""
+    weight = np.clip(np.asarray(evidence, np.float64) / MIN_EVIDENCE_POINTS - 1.0, 0.0, 1.0)
+    if density is not None:
+        weight = weight * np.clip(np.asarray(density, np.float64) / INKED_DENSITY - 1.0, 0.0, 1.0)
+    return weight
 
 
 def fill_thin_correlation(lab_map: LabMap, evidence: np.ndarray) -> tuple[LabMap, bool]:
     """(map with a, b blended towards the surrounding well-observed a, b, whether any source existed).
 
-    ``a, b <- c a, b + (1 - c) NC(a, b)`` with ``c`` = :func:`confidence` and ``NC`` the normalised
-    convolution ``G * (c ab) / G * c`` at the smallest kernel of :data:`FILL_SIGMAS_PX` whose mean confidence
-    reaches :data:`FILL_MIN_WEIGHT` at the pixel. Without a well-observed pixel the map is returned unchanged.
+    ``a, b <- c a, b + (1 - c) NC(a, b)`` with ``c`` = :func:`confidence` of the evidence and the map's density
+    (of the evidence alone when no pixel reaches :data:`INKED_DENSITY`: a map that light has no inked area to
+    fill from) and ``NC`` the normalised convolution ``G * (c ab) / G * c`` at the smallest kernel of
+    :data:`FILL_SIGMAS_PX` whose mean confidence reaches :data:`FILL_MIN_WEIGHT` at the pixel. Without a
+    well-observed pixel the map is returned unchanged.
     """
-    weight = confidence(evidence)
+    weight = confidence(evidence, lab_map.density())
+    if not weight.any():
+        weight = confidence(evidence)
     if not weight.any():
         return lab_map, False
     ab = lab_map.ab.astype(np.float64)
@@ -210,8 +227,13 @@ def summarise(evidence: np.ndarray, filled: bool, fill_source: bool) -> Evidence
 
 
 def correlation_zoom(density: np.ndarray) -> np.ndarray:
-    """(H, W) zoom ``f`` in [1, MAX_ZOOM] at which each pixel's density (H, W) in [0, 1] reads as :data:`WORK_DENSITY`."""
-    return np.clip(WORK_DENSITY / np.maximum(np.asarray(density, np.float64), WORK_DENSITY / MAX_ZOOM), 1.0, MAX_ZOOM)
+    """(H, W) zoom ``f`` in [1, MAX_ZOOM] at which each pixel's density (H, W) in [0, 1] reads as :data:`WORK_DENSITY`.
+
+    A pixel's density is taken as the densest within :data:`ZOOM_NEIGHBOURHOOD_PX` of it, so a light pixel next to
+    a dark area is read at the dark area's scale: zoomed, such a density edge looks like a cluster's border.
+    """
+    local = maximum_filter(np.asarray(density, np.float64), size=2 * ZOOM_NEIGHBOURHOOD_PX + 1, mode="nearest")
+    return np.clip(WORK_DENSITY / np.maximum(local, WORK_DENSITY / MAX_ZOOM), 1.0, MAX_ZOOM)
 
 
 def zoom_levels(zoom: np.ndarray) -> tuple[int, ...]:

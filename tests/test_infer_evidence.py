@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from export.evidence import (DENSE_THRESHOLD, EVIDENCE_RADIUS_PX, MAX_ZOOM, WORK_DENSITY, ScaleChoice, blend_zoomed,
+from export.evidence import (DENSE_THRESHOLD, EVIDENCE_RADIUS_PX, INKED_DENSITY, MAX_ZOOM, WORK_DENSITY, ZOOM_NEIGHBOURHOOD_PX, ScaleChoice, blend_zoomed,
                              calibrate_density, choose_points_per_ink, correlation_zoom, fill_thin_correlation, local_evidence,
                              summarise, zoom_levels)
 from export.onnx import export_onnx
@@ -54,6 +54,25 @@ def test_evidence_counts_points_in_the_raster_window() -> None:
     expected = math.pi * EVIDENCE_RADIUS_PX**2 * 20_000 / 640**2
     assert evidence[32:-32, 32:-32].mean() == pytest.approx(expected, rel=0.05)
     assert summarise(evidence, False, False).thin_share == 0.0
+
+
+def test_uninked_pixels_are_filled_even_where_points_are_near() -> None:
+    """Every pixel has evidence (its window reaches the points), but the right half holds no ink (L 100): its a, b,
+    echoing the points next to it, is replaced by the inked half's. A map with no inked pixel falls back to the evidence."""
+    lab = np.zeros((64, 64, 3), np.float32)
+    lab[:, :32] = (50.0, 0.0, 0.0)
+    lab[:, 32:] = (100.0, 60.0, 25.0)
+    filled, source = fill_thin_correlation(LabMap(lab), np.full((64, 64), 50.0))
+    assert source
+    np.testing.assert_allclose(filled.ab, 0.0, atol=1e-3)
+    np.testing.assert_array_equal(filled.L, LabMap(lab).L)
+    light = lab.copy()
+    light[:, :32, 0] = 100.0 * (1.0 - 0.5 * INKED_DENSITY)  # inked below INKED_DENSITY everywhere: evidence alone decides
+    evidence = np.zeros((64, 64))
+    evidence[:, :32] = 50.0
+    filled, source = fill_thin_correlation(LabMap(light), evidence)
+    assert source
+    np.testing.assert_allclose(filled.ab, 0.0, atol=1e-3)
 
 
 def test_thin_correlation_is_filled_from_the_surroundings() -> None:
@@ -139,9 +158,12 @@ def test_calibrated_ink_holds_the_pattern_count() -> None:
 
 
 def test_correlation_zoom_reads_light_areas_at_the_working_density() -> None:
-    density = np.array([[1.0, WORK_DENSITY, WORK_DENSITY / 4, WORK_DENSITY / 10, 0.0]])
-    zoom = correlation_zoom(density)
-    assert zoom[0] == pytest.approx([1.0, 1.0, 4.0, 10.0, MAX_ZOOM])
+    blocks = np.repeat([1.0, WORK_DENSITY, WORK_DENSITY / 4, WORK_DENSITY / 10, 0.0], 10)[None]  # (1, 50): 10-px blocks
+    zoom_of_blocks = correlation_zoom(blocks)
+    assert zoom_of_blocks[0, 5::10] == pytest.approx([1.0, 1.0, 4.0, 10.0, MAX_ZOOM])
+    # a light pixel is zoomed as the densest pixel within ZOOM_NEIGHBOURHOOD_PX: next to a darker block, that block's zoom
+    assert zoom_of_blocks[0, 20 + ZOOM_NEIGHBOURHOOD_PX - 1] == 1.0 and zoom_of_blocks[0, 20 + ZOOM_NEIGHBOURHOOD_PX] == pytest.approx(4.0)
+    zoom = zoom_of_blocks[:, 5::10]
     levels = (1, 2, 4, 8, 16, 32, 64)
     assert zoom_levels(zoom) == levels and zoom_levels(zoom[:, :3]) == (1, 2, 4) and zoom_levels(zoom[:, :2]) == (1,)
     readings = [np.full((1, 5, 2), 0.0 if level == 1 else float(level)) for level in levels]
