@@ -44,7 +44,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        "raised automatically for a pattern denser than that)")
     infer.add_argument("--no-fill", action="store_true",
                        help="keep the network's a,b: no zoomed reading of light areas, no fill where too few points show "
-                       "correlation (default: both)")
+                       "correlation or the map holds no ink (default: both)")
     infer.add_argument("--no-calibrate", action="store_true",
                        help="keep the network's L (default: ink scaled so that the map holds the pattern's point count)")
     infer.add_argument("--symmetries", type=int, choices=(1, 4, 8), default=8,
