@@ -128,27 +128,37 @@ def other_methods_setting(config: dict) -> dict:
     return {"share": share, "methods": methods}
 
 
+def factor_range(config: dict, name: str, default: tuple[float, float]) -> list[float]:
+    """``name.scale`` [lo, hi] of a config block, checked: 0 < lo <= hi <= 1."""
+    low, high = (float(value) for value in config.get("scale", default))
+    if not 0.0 < low <= high <= 1.0:
+        raise ValueError(f"{name}.scale needs 0 < lo <= hi <= 1, got [{low:g}, {high:g}]")
+    return [low, high]
+
+
+def log_uniform_factor(rng: np.random.Generator, bounds: list[float]) -> float:
+    """A factor drawn log-uniformly in ``bounds`` [lo, hi] (one draw from ``rng``)."""
+    low, high = bounds
+    return float(np.exp(rng.uniform(np.log(low), np.log(high))))
+
+
 def sparse_setting(config: dict) -> dict:
     """``sparse`` config -> {"share", "scale", "holes", "empty_share"} checked (shares in [0, 1], 0 < lo <= hi <= 1)."""
     share, empty_share = float(config.get("share", 0.0)), float(config.get("empty_share", 0.0))
-    low, high = (float(value) for value in config.get("scale", (0.03, 0.4)))
     holes = int(config.get("holes", 3))
     if not (0.0 <= share <= 1.0 and 0.0 <= empty_share <= 1.0):
         raise ValueError(f"sparse.share and sparse.empty_share must be in [0, 1], got {share:g} and {empty_share:g}")
-    if not 0.0 < low <= high <= 1.0 or holes < 0:
-        raise ValueError(f"sparse.scale needs 0 < lo <= hi <= 1 and sparse.holes >= 0, got [{low:g}, {high:g}] and {holes}")
-    return {"share": share, "scale": [low, high], "holes": holes, "empty_share": empty_share}
+    if holes < 0:
+        raise ValueError(f"sparse.holes must be >= 0, got {holes}")
+    return {"share": share, "scale": factor_range(config, "sparse", (0.03, 0.4)), "holes": holes, "empty_share": empty_share}
 
 
 def dense_setting(config: dict) -> dict:
     """``dense`` config -> {"share", "scale"} checked (share in [0, 1], 0 < lo <= hi <= 1)."""
     share = float(config.get("share", 0.0))
-    low, high = (float(value) for value in config.get("scale", (0.05, 0.5)))
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"dense.share must be in [0, 1], got {share:g}")
-    if not 0.0 < low <= high <= 1.0:
-        raise ValueError(f"dense.scale needs 0 < lo <= hi <= 1, got [{low:g}, {high:g}]")
-    return {"share": share, "scale": [low, high]}
+    return {"share": share, "scale": factor_range(config, "dense", (0.05, 0.5))}
 
 
 def density_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> LabMap:
@@ -162,15 +172,13 @@ def density_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Gene
     if options["empty_share"] and rng.random() < options["empty_share"]:
         density = np.zeros(lab_map.L.shape)
     elif options["share"] and rng.random() < options["share"]:
-        low, high = options["scale"]
-        density = lab_map.density() * np.exp(rng.uniform(np.log(low), np.log(high)))
+        density = lab_map.density() * log_uniform_factor(rng, options["scale"])
         rows, cols = np.indices(density.shape)
         for _ in range(int(rng.integers(0, options["holes"] + 1))):
             (row, col), radius = rng.random(2) * density.shape, rng.uniform(0.05, 0.25) * max(density.shape)
             density[(rows - row) ** 2 + (cols - col) ** 2 < radius**2] = 0.0
     elif settings.dense["share"] and rng.random() < settings.dense["share"]:
-        low, high = settings.dense["scale"]
-        density = 1.0 - (1.0 - lab_map.density()) * np.exp(rng.uniform(np.log(low), np.log(high)))
+        density = 1.0 - (1.0 - lab_map.density()) * log_uniform_factor(rng, settings.dense["scale"])
     if density is None:
         return lab_map
     return target_to_map(map_to_target(LabMap.from_density_latent(density, lab_map.latent())))  # 8-bit, as stored

@@ -178,28 +178,30 @@ class EvidenceSummary:
                 "filled_from_surroundings": self.filled, "well_observed_area": self.fill_source}
 
 
-def confidence(evidence: np.ndarray, density: np.ndarray | None = None) -> np.ndarray:
-    """Weight in [0, 1] of the network's a, b: 0 below :data:`MIN_EVIDENCE_POINTS`, 1 from twice that, linear between;
-    times the same ramp of the map's ``density`` (H, W) in [0, 1] from :data:`INKED_DENSITY` where it is given,
-    so an area without ink, whose a, b only echoes the points around it, is filled too."""
-    weight = np.clip(np.asarray(evidence, np.float64) / MIN_EVIDENCE_POINTS - 1.0, 0.0, 1.0)
-    if density is not None:
-        weight = weight * np.clip(np.asarray(density, np.float64) / INKED_DENSITY - 1.0, 0.0, 1.0)
-    return weight
+def confidence(evidence: np.ndarray) -> np.ndarray:
+    """Weight in [0, 1] of the network's a, b: 0 below :data:`MIN_EVIDENCE_POINTS`, 1 from twice that, linear between."""
+    return np.clip(np.asarray(evidence, np.float64) / MIN_EVIDENCE_POINTS - 1.0, 0.0, 1.0)
+
+
+def ink_weight(density: np.ndarray) -> np.ndarray:
+    """Weight in [0, 1] of a pixel's own a, b by its density (H, W) in [0, 1]: 0 below :data:`INKED_DENSITY`, 1 from
+    twice that, linear between. An area without ink has no pattern to read: its a, b only echoes the points around it."""
+    return np.clip(np.asarray(density, np.float64) / INKED_DENSITY - 1.0, 0.0, 1.0)
 
 
 def fill_thin_correlation(lab_map: LabMap, evidence: np.ndarray) -> tuple[LabMap, bool]:
     """(map with a, b blended towards the surrounding well-observed a, b, whether any source existed).
 
-    ``a, b <- c a, b + (1 - c) NC(a, b)`` with ``c`` = :func:`confidence` of the evidence and the map's density
-    (of the evidence alone when no pixel reaches :data:`INKED_DENSITY`: a map that light has no inked area to
+    ``a, b <- c a, b + (1 - c) NC(a, b)`` with ``c`` = :func:`confidence` of the evidence times :func:`ink_weight`
+    (the evidence's alone when no pixel reaches :data:`INKED_DENSITY`: a map that light has no inked area to
     fill from) and ``NC`` the normalised convolution ``G * (c ab) / G * c`` at the smallest kernel of
     :data:`FILL_SIGMAS_PX` whose mean confidence reaches :data:`FILL_MIN_WEIGHT` at the pixel. Without a
     well-observed pixel the map is returned unchanged.
     """
-    weight = confidence(evidence, lab_map.density())
+    observed = confidence(evidence)
+    weight = observed * ink_weight(lab_map.density())
     if not weight.any():
-        weight = confidence(evidence)
+        weight = observed
     if not weight.any():
         return lab_map, False
     ab = lab_map.ab.astype(np.float64)
