@@ -8,8 +8,8 @@ caller to report. Outputs are written atomically, named after the input
 * :func:`convert_points`: each worker process loads the network once
   (:class:`~export.runtime.OnnxModel`), then takes chunks of point files: reads
   each and infers its map as ``infer`` does (:func:`export.runtime.infer_map`:
-  scale chosen from the pattern unless given, a, b filled where the evidence is
-  thin) and writes a CIELAB TIFF. The network
+  scale chosen from the pattern unless given, L sharpened where the points are
+  regular, a, b filled where the evidence is thin) and writes a CIELAB TIFF. The network
   is nearly all the work (about 80 ms of one core per 20k-point file at the
   default scale, a 640 x 640 px raster), so N workers on N idle cores go about
   N times as fast as one.

@@ -30,7 +30,8 @@
 
 :func:`infer_map` is what ``infer`` runs (:mod:`export.evidence`): the same
 reading, with the scale chosen from the pattern's own local density unless
-given; the ink scaled so that the map holds the pattern's point count; the
+given; the ink scaled so that the map holds the pattern's point count; L
+sharpened from the points where they are regular (:mod:`export.density`); the
 correlation of light areas read again at a zoom (as if the pattern held 4, 16
 or 64 times fewer points per ink, so the network sees them at a density it
 reads correlation at); and a, b filled from the surroundings where even then
@@ -49,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from export.density import sharpen_density
 from export.edits import resize
 from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
                              fill_thin_correlation, local_evidence, summarise, zoom_levels)
@@ -224,7 +226,8 @@ class Inference:
     ``output`` is the network's raw output over the domain (3, hR, wR) in [0, 1] of the main reading,
     ``pixels_per_unit`` its raster's pixels per unit of the domain (R). ``zooms`` are the readings made for correlation (1: the main one only), ``zoomed_share``
     the share of the map whose a, b came from a zoomed reading, ``calibration`` the ink factor applied
-    (None: the network's L as it came), ``symmetries`` how many symmetries each reading averaged.
+    (None: the network's L as it came), ``symmetries`` how many symmetries each reading averaged,
+    ``sharpened_share`` the share of L taken from the points rather than the network (:mod:`export.density`).
     """
 
     lab_map: LabMap
@@ -236,12 +239,14 @@ class Inference:
     zoomed_share: float = 0.0
     calibration: float | None = None
     symmetries: int = 1
+    sharpened_share: float = 0.0
 
     def report(self) -> dict:
         return {"width": self.lab_map.width, "height": self.lab_map.height, "symmetries": self.symmetries,
                 **self.scale.report(), **self.evidence.report(),
                 "correlation_zooms": list(self.zooms), "zoomed_share": round(self.zoomed_share, 4),
-                "ink_calibration_factor": None if self.calibration is None else round(self.calibration, 4)}
+                "ink_calibration_factor": None if self.calibration is None else round(self.calibration, 4),
+                "sharpened_share": round(self.sharpened_share, 4)}
 
 
 def dihedral(array: np.ndarray, code: int, inverse: bool = False) -> np.ndarray:
@@ -286,7 +291,8 @@ def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shap
 
 
 def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
-              fill_thin: bool = True, calibrate: bool = True, symmetries: int = DEFAULT_SYMMETRIES) -> Inference:
+              fill_thin: bool = True, calibrate: bool = True, symmetries: int = DEFAULT_SYMMETRIES,
+              sharpen: bool = True) -> Inference:
     """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
 
     Args:
@@ -300,6 +306,8 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
             them where the evidence stays thin by the surrounding well-observed a, b.
         calibrate: scale the ink to the pattern's point count (:func:`export.evidence.calibrate_density`);
             False keeps the network's L.
+        sharpen: with ``calibrate``, take L from the points where they are regular
+            (:func:`export.density.sharpen_density`), then restore the ink; a, b are read as without it.
         symmetries: readings averaged over this many symmetries of the square (:func:`predict_symmetric`).
     """
     scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
@@ -330,8 +338,13 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
     source = False
     if fill_thin:
         lab_map, source = fill_thin_correlation(lab_map, evidence)
+    sharpened_share = 0.0
+    if calibrate and sharpen:  # L only: the zoom and the fill above read the network's density
+        sharpened, sharpened_share = sharpen_density(points, density, scale.points_per_ink)
+        sharpened, _ = calibrate_density(sharpened, len(points) / scale.points_per_ink)
+        lab_map = LabMap(np.concatenate([100.0 * (1.0 - sharpened[..., None]), lab_map.ab], axis=-1))
     return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source), output, pixels_per_unit, zooms,
-                     zoomed_share, factor, symmetries)
+                     zoomed_share, factor, symmetries, sharpened_share)
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

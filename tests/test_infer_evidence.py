@@ -202,3 +202,35 @@ def test_symmetric_reading_is_equivariant(tiny_model: Path) -> None:
         np.testing.assert_allclose(turned, dihedral(averaged, code), atol=1e-5)
     np.testing.assert_allclose(predict_symmetric(model, raster, 1), model.predict(raster[None, None])[0], atol=1e-7)
     assert np.abs(predict_symmetric(model, raster, 4) - averaged).max() > 1e-4  # 4 and 8 differ on a generic network
+
+
+def test_infer_sharpens_l_of_regular_patterns_only(tiny_model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from scipy.stats import qmc
+
+    regular, poisson = tmp_path / "regular.txt", tmp_path / "poisson.txt"
+    write_points(PointSet(qmc.PoissonDisk(2, radius=0.006, seed=1).fill_space()), regular)
+    write_points(PointSet(generate("white", 15_000, seed=2)), poisson)
+    report = tmp_path / "r.json"
+    status, _, err = run_cli(["infer", str(regular), str(tmp_path / "a.tif"), "--model", str(tiny_model), "--report", str(report)], capsys)
+    assert status == 0, err
+    assert json.loads(report.read_text())["sharpened_share"] > 0.8 and "sharpened from its regular points" in err
+    status, _, err = run_cli(["infer", str(poisson), str(tmp_path / "b.tif"), "--model", str(tiny_model), "--report", str(report)], capsys)
+    assert status == 0 and json.loads(report.read_text())["sharpened_share"] < 0.1
+    status, _, err = run_cli(["infer", str(regular), str(tmp_path / "c.tif"), "--model", str(tiny_model), "--no-sharpen",
+                              "--report", str(report)], capsys)
+    assert status == 0 and json.loads(report.read_text())["sharpened_share"] == 0 and "sharpened" not in err
+
+
+def test_sharpening_changes_l_only_and_keeps_the_point_count(tiny_model: Path) -> None:
+    from scipy.stats import qmc
+
+    from export.runtime import OnnxModel, infer_map
+    from synthesis.synthesize import point_count
+
+    model = OnnxModel(tiny_model)
+    points = PointSet(qmc.PoissonDisk(2, radius=0.008, seed=3).fill_space())
+    sharp, plain = infer_map(points, model, symmetries=1), infer_map(points, model, symmetries=1, sharpen=False)
+    assert sharp.sharpened_share > 0.8 and plain.sharpened_share == 0
+    np.testing.assert_array_equal(sharp.lab_map.ab, plain.lab_map.ab)
+    assert not np.array_equal(sharp.lab_map.L, plain.lab_map.L)
+    assert point_count(sharp.lab_map, sharp.scale.points_per_ink) == len(points)

@@ -1,0 +1,173 @@
+"""What the points themselves say about L: sharpening the network's density where the pattern is regular.
+
+The network reads density at a fixed bandwidth of a few point spacings, so a
+fine-detailed stippling comes out softer than a kernel density estimate at one
+pixel (issue 14: on Floyd-Steinberg and Lloyd stipplings a KDE at 1-1.5 px beat
+it). How fine a count can be trusted depends on the pattern's correlation: the
+counts of a regular (blue-noise, Lloyd, dithered) pattern vary far less than
+Poisson's, so a KDE about one point spacing wide is nearly noise-free there,
+while a Poisson pattern's is mostly noise, and the network's reading is better.
+
+:func:`sharpen_density` does both, per pixel:
+
+1. **A two-guide filter** (:func:`two_guide_filter`; the guided filter of He,
+   Sun and Tang 2013, with two guides): a kernel density estimate of the
+   points whose kernel is :data:`SHARP_BANDWIDTH` local spacings wide
+   (:func:`spacing_kde`: 1 px at full ink at 50,000 points per ink on 256 px,
+   wider in light areas, so that a light area's points do not show as dots) is
+   regressed, in Gaussian windows of :data:`GUIDE_RADIUS` full-ink spacings, on
+   the network's density and on itself. The self-guide is regularised by the
+   estimate's noise variance if the points were Poisson (``d / (4 pi h^2 f)``
+   at density ``d``, kernel width ``h``, ``f`` points per map pixel at full
+   ink), so a window keeps the estimate's own detail only where it varies more
+   than Poisson noise would make it, and follows the network elsewhere.
+2. **A regularity weight** (:func:`regularity_weight`) from the local
+   Clark-Evans ratio (:func:`clark_evans_ratio`; Clark and Evans 1954): the
+   mean distance from each point to its nearest neighbour over the mean
+   distance a Poisson pattern of the same density would give (``1 / (2
+   sqrt(lambda))``), averaged around each pixel. It is 1.0 for Poisson
+   patterns, 1.26 for a jittered grid, 1.7 for Poisson-disk and Lloyd, 0.56
+   for Thomas clusters (stationary patterns of ``patternshop_nn.ood``, 2,500 to
+   50,000 points; measured, not fitted to the evaluation's pictures). The
+   weight rises from 0 at :data:`POISSON_RATIO` to 1 at :data:`REGULAR_RATIO`:
+   the filtered KDE where the points are regular, the network's density where
+   they are Poisson or clustered (a cluster is not a dark spot: issue 14's
+   confusion of clustering with density).
+
+The result is water-filled back to the pattern's ink
+(:func:`export.evidence.calibrate_density`) by the caller. The kernel width
+and the window were chosen among a few values on the evaluation's stipplings
+(``patternshop_nn.ood``: ``camera``, ``astronaut``, ``moon``, ``coins``); the
+unseen pictures of the model card are the check that was not looked at first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+from scipy.spatial import cKDTree
+
+from synthesis.points import PointSet
+from synthesis.raster import point_raster
+
+# Lengths in full-ink spacings, 1 / sqrt(points per map pixel at full ink): 1.15 px on a 256-px map at 50,000
+# points per ink, 2.9 px at the default model's training scale (8,000), so the sharpening does the same to the
+# same pattern at any scale or map width.
+SHARP_BANDWIDTH = 0.9  # Gaussian KDE of the points, in local spacings (1.0 px at full ink, 50,000 per ink, 256 px)
+BANDWIDTH_STEP = 2.0 ** 0.25  # the kernels' widths come in this ratio (each point takes the nearest)
+MIN_DENSITY = 1.0 / 256  # a point's kernel is never wider than at this density (16 full-ink spacings)
+GUIDE_RADIUS = 1.75  # Gaussian windows of the two-guide filter (2.0 px there)
+REGULARITY_SIGMA = 3.5  # Gaussian window the Clark-Evans ratio is averaged over (4.0 px there)
+NETWORK_RIDGE = 1e-3  # regularisation of the network guide (density^2): its variance is trusted above this
+POISSON_RATIO = 1.15  # Clark-Evans ratio up to which the network's density is kept (Poisson: 1.0, +- 0.08 in a window)
+REGULAR_RATIO = 1.65  # ratio from which the filtered KDE is taken whole (Poisson-disk and Lloyd: 1.7)
+MAX_POINT_RATIO = 3.0  # a single point's ratio is capped here (a point the network put in a near-white pixel)
+
+
+def map_points(points: PointSet, shape: tuple[int, int]) -> np.ndarray:
+    """(n, 2) the points in map pixel coordinates (x right, y down; a pixel's centre at +0.5) of a map (H, W)."""
+    return np.asarray(points.xy, np.float64).reshape(-1, 2) * (shape[1] / points.domain[0])
+
+
+def count_raster(xy_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) points per pixel, splatted bilinearly (sums kept), of points (n, 2) in map pixel coordinates."""
+    side = max(shape)
+    return point_raster(np.asarray(xy_px, np.float64) / side, side, clip=False)[:shape[0], :shape[1]].astype(np.float64)
+
+
+def point_density(xy_px: np.ndarray, density: np.ndarray) -> np.ndarray:
+    """(n,) the map's density (H, W) at the pixel of each point (n, 2) in map pixel coordinates."""
+    col = np.clip(xy_px[:, 0].astype(np.int64), 0, density.shape[1] - 1)
+    row = np.clip(xy_px[:, 1].astype(np.int64), 0, density.shape[0] - 1)
+    return density[row, col]
+
+
+def spacing_kde(xy_px: np.ndarray, density: np.ndarray, full_ink_per_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(density estimate (H, W), kernel width (H, W) in px) of points (n, 2) in map pixel coordinates.
+
+    A sample-point KDE whose kernel follows the local spacing: each point's Gaussian is :data:`SHARP_BANDWIDTH`
+    spacings ``1 / sqrt(d f)`` wide, ``d`` the map's ``density`` (H, W) in [0, 1] at the point (at least
+    :data:`MIN_DENSITY`), ``f`` the points per pixel at full ink, rounded to a width of the geometric series
+    of ratio :data:`BANDWIDTH_STEP` (one blur per width used). The kernel width map is the same rule per pixel.
+    """
+    full_ink_width = SHARP_BANDWIDTH / np.sqrt(full_ink_per_px)
+    width = full_ink_width / np.sqrt(np.maximum(density, MIN_DENSITY))
+    point_steps = np.rint(np.log(1.0 / np.sqrt(np.maximum(point_density(xy_px, density), MIN_DENSITY)))
+                          / np.log(BANDWIDTH_STEP)).astype(np.int64)
+    estimate = np.zeros(density.shape)
+    for step in np.unique(point_steps):
+        chosen = xy_px[point_steps == step]
+        estimate += gaussian_filter(count_raster(chosen, density.shape), full_ink_width * BANDWIDTH_STEP ** step)
+    return estimate / full_ink_per_px, width
+
+
+def clark_evans_ratio(xy_px: np.ndarray, density: np.ndarray, full_ink_per_px: float,
+                      sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(ratio (H, W), its support (H, W)) around each pixel of a map of ``density`` (H, W) in [0, 1].
+
+    Each point's nearest-neighbour distance over Poisson's mean ``1 / (2 sqrt(lambda))``, with ``lambda =
+    density x full_ink_per_px`` points per pixel at the point, capped at :data:`MAX_POINT_RATIO`; averaged
+    with Gaussian weights of ``sigma_px``. The support is the points under that window (0: no points near,
+    ratio 0). Needs at least 2 points (else all zeros).
+    """
+    shape = density.shape
+    ratio, support = np.zeros(shape), np.zeros(shape)
+    if len(xy_px) < 2:
+        return ratio, support
+    nearest = cKDTree(xy_px).query(xy_px, k=2)[0][:, 1]
+    col = np.clip(xy_px[:, 0].astype(np.int64), 0, shape[1] - 1)
+    row = np.clip(xy_px[:, 1].astype(np.int64), 0, shape[0] - 1)
+    points_per_px = np.maximum(point_density(xy_px, density), 1.0 / density.size) * full_ink_per_px
+    point_ratio = np.minimum(nearest * 2.0 * np.sqrt(points_per_px), MAX_POINT_RATIO)
+    np.add.at(ratio, (row, col), point_ratio)
+    np.add.at(support, (row, col), 1.0)
+    ratio, support = gaussian_filter(ratio, sigma_px), gaussian_filter(support, sigma_px)
+    return np.divide(ratio, support, out=np.zeros(shape), where=support > 1e-9), support * 2 * np.pi * sigma_px ** 2
+
+
+def regularity_weight(ratio: np.ndarray) -> np.ndarray:
+    """(H, W) in [0, 1]: 0 up to a Clark-Evans ratio of :data:`POISSON_RATIO`, 1 from :data:`REGULAR_RATIO`, linear between."""
+    return np.clip((np.asarray(ratio) - POISSON_RATIO) / (REGULAR_RATIO - POISSON_RATIO), 0.0, 1.0)
+
+
+def two_guide_filter(source: np.ndarray, guide: np.ndarray, source_noise: np.ndarray,
+                     radius_px: float, guide_ridge: float = NETWORK_RIDGE) -> np.ndarray:
+    """(H, W) ``source`` (H, W) filtered with two guides, ``guide`` (H, W) and ``source`` itself.
+
+    In each Gaussian window of ``radius_px`` the output is ``a_g guide + a_s source + b``, least squares on
+    ``source`` with ridges ``guide_ridge`` on ``a_g`` and ``source_noise`` (H, W, the source's noise variance)
+    on ``a_s``; the coefficients are averaged over the windows covering a pixel (He et al. 2013). A window
+    where the source is flat and noise-free keeps its mean.
+    """
+    def mean(x: np.ndarray) -> np.ndarray:
+        return gaussian_filter(x, radius_px)
+
+    mean_g, mean_s = mean(guide), mean(source)
+    var_g = mean(guide * guide) - mean_g * mean_g + guide_ridge
+    var_s = mean(source * source) - mean_s * mean_s
+    cov = mean(guide * source) - mean_g * mean_s
+    regularised_s = var_s + source_noise
+    det = var_g * regularised_s - cov * cov
+    solvable = det > 1e-12 * var_g  # 0 only where the source is flat and noise-free: its mean is then exact
+    a_g = np.divide(regularised_s * cov - cov * var_s, det, out=np.zeros_like(det), where=solvable)
+    a_s = np.divide(var_g * var_s - cov * cov, det, out=np.zeros_like(det), where=solvable)
+    b = mean_s - a_g * mean_g - a_s * mean_s
+    return mean(a_g) * guide + mean(a_s) * source + mean(b)
+
+
+def sharpen_density(points: PointSet, density: np.ndarray, points_per_ink: float) -> tuple[np.ndarray, float]:
+    """(density (H, W) in [0, 1], the share of it taken from the points) of a map whose network density is
+    ``density`` (H, W) in [0, 1], already holding the pattern's ink at ``points_per_ink`` (points of a fully
+    dark map of the domain). Fewer than 2 points: the density unchanged, share 0."""
+    density = np.asarray(density, np.float64)
+    if len(points) < 2:
+        return density, 0.0
+    full_ink_per_px = points_per_ink / density.size
+    spacing_px = 1.0 / np.sqrt(full_ink_per_px)
+    radius_px = GUIDE_RADIUS * spacing_px
+    xy_px = map_points(points, density.shape)
+    kde, width_px = spacing_kde(xy_px, density, full_ink_per_px)
+    noise = np.maximum(gaussian_filter(kde, radius_px), 0.0) / (4 * np.pi * width_px ** 2 * full_ink_per_px)
+    filtered = np.clip(two_guide_filter(kde, density, noise, radius_px), 0.0, 1.0)
+    weight = regularity_weight(clark_evans_ratio(xy_px, density, full_ink_per_px, REGULARITY_SIGMA * spacing_px)[0])
+    return weight * filtered + (1.0 - weight) * density, float(weight.mean())
