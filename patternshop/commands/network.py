@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        "implies --no-sharpen)")
     infer.add_argument("--no-sharpen", action="store_true",
                        help="keep the network's L where the points are regular too (default: L sharpened there from a "
-                       "1-pixel density estimate of the points, guided by the network's L)")
+                       "density estimate of the points about one point spacing wide, guided by the network's L)")
     infer.add_argument("--symmetries", type=int, choices=(1, 4, 8), default=8,
                        help="average the network's readings over this many symmetries of the square: 8 (default) flips and "
                        "transposes, 4 flips only, 1 a single run (8 times faster)")
