@@ -75,11 +75,15 @@ def count_raster(xy_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return point_raster(np.asarray(xy_px, np.float64) / side, side, clip=False)[:shape[0], :shape[1]].astype(np.float64)
 
 
+def point_pixels(xy_px: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(rows (n,), columns (n,)) of the pixels of a map (H, W) holding points (n, 2) in map pixel coordinates."""
+    return (np.clip(xy_px[:, 1].astype(np.int64), 0, shape[0] - 1),
+            np.clip(xy_px[:, 0].astype(np.int64), 0, shape[1] - 1))
+
+
 def point_density(xy_px: np.ndarray, density: np.ndarray) -> np.ndarray:
     """(n,) the map's density (H, W) at the pixel of each point (n, 2) in map pixel coordinates."""
-    col = np.clip(xy_px[:, 0].astype(np.int64), 0, density.shape[1] - 1)
-    row = np.clip(xy_px[:, 1].astype(np.int64), 0, density.shape[0] - 1)
-    return density[row, col]
+    return density[point_pixels(xy_px, density.shape)]
 
 
 def spacing_kde(xy_px: np.ndarray, density: np.ndarray, full_ink_per_px: float) -> tuple[np.ndarray, np.ndarray]:
@@ -101,28 +105,24 @@ def spacing_kde(xy_px: np.ndarray, density: np.ndarray, full_ink_per_px: float) 
     return estimate / full_ink_per_px, width
 
 
-def clark_evans_ratio(xy_px: np.ndarray, density: np.ndarray, full_ink_per_px: float,
-                      sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """(ratio (H, W), its support (H, W)) around each pixel of a map of ``density`` (H, W) in [0, 1].
+def clark_evans_ratio(xy_px: np.ndarray, density: np.ndarray, full_ink_per_px: float, sigma_px: float) -> np.ndarray:
+    """(H, W) the Clark-Evans ratio around each pixel of a map of ``density`` (H, W) in [0, 1].
 
     Each point's nearest-neighbour distance over Poisson's mean ``1 / (2 sqrt(lambda))``, with ``lambda =
     density x full_ink_per_px`` points per pixel at the point, capped at :data:`MAX_POINT_RATIO`; averaged
-    with Gaussian weights of ``sigma_px``. The support is the points under that window (0: no points near,
-    ratio 0). Needs at least 2 points (else all zeros).
+    with Gaussian weights of ``sigma_px``. 0 where no point is near, and everywhere below 2 points.
     """
     shape = density.shape
     ratio, support = np.zeros(shape), np.zeros(shape)
     if len(xy_px) < 2:
-        return ratio, support
+        return ratio
     nearest = cKDTree(xy_px).query(xy_px, k=2)[0][:, 1]
-    col = np.clip(xy_px[:, 0].astype(np.int64), 0, shape[1] - 1)
-    row = np.clip(xy_px[:, 1].astype(np.int64), 0, shape[0] - 1)
-    points_per_px = np.maximum(point_density(xy_px, density), 1.0 / density.size) * full_ink_per_px
-    point_ratio = np.minimum(nearest * 2.0 * np.sqrt(points_per_px), MAX_POINT_RATIO)
-    np.add.at(ratio, (row, col), point_ratio)
-    np.add.at(support, (row, col), 1.0)
+    pixels = point_pixels(xy_px, shape)
+    points_per_px = np.maximum(density[pixels], 1.0 / density.size) * full_ink_per_px
+    np.add.at(ratio, pixels, np.minimum(nearest * 2.0 * np.sqrt(points_per_px), MAX_POINT_RATIO))
+    np.add.at(support, pixels, 1.0)
     ratio, support = gaussian_filter(ratio, sigma_px), gaussian_filter(support, sigma_px)
-    return np.divide(ratio, support, out=np.zeros(shape), where=support > 1e-9), support * 2 * np.pi * sigma_px ** 2
+    return np.divide(ratio, support, out=np.zeros(shape), where=support > 1e-9)
 
 
 def regularity_weight(ratio: np.ndarray) -> np.ndarray:
@@ -169,5 +169,5 @@ def sharpen_density(points: PointSet, density: np.ndarray, points_per_ink: float
     kde, width_px = spacing_kde(xy_px, density, full_ink_per_px)
     noise = np.maximum(gaussian_filter(kde, radius_px), 0.0) / (4 * np.pi * width_px ** 2 * full_ink_per_px)
     filtered = np.clip(two_guide_filter(kde, density, noise, radius_px), 0.0, 1.0)
-    weight = regularity_weight(clark_evans_ratio(xy_px, density, full_ink_per_px, REGULARITY_SIGMA * spacing_px)[0])
+    weight = regularity_weight(clark_evans_ratio(xy_px, density, full_ink_per_px, REGULARITY_SIGMA * spacing_px))
     return weight * filtered + (1.0 - weight) * density, float(weight.mean())

@@ -32,8 +32,8 @@
 reading, with the scale chosen from the pattern's own local density unless
 given; the ink scaled so that the map holds the pattern's point count; L
 sharpened from the points where they are regular (:mod:`export.density`); the
-correlation of light areas read again at a zoom (as if the pattern held 4, 16
-or 64 times fewer points per ink, so the network sees them at a density it
+correlation of light areas read again at a zoom (as if the pattern held 2, 4
+... 64 times fewer points per ink, so the network sees them at a density it
 reads correlation at); and a, b filled from the surroundings where even then
 too few points show correlation.
 """
