@@ -130,14 +130,15 @@ def regularity_weight(ratio: np.ndarray) -> np.ndarray:
     return np.clip((np.asarray(ratio) - POISSON_RATIO) / (REGULAR_RATIO - POISSON_RATIO), 0.0, 1.0)
 
 
-def two_guide_filter(source: np.ndarray, guide: np.ndarray, source_noise: np.ndarray,
+def two_guide_filter(source: np.ndarray, guide: np.ndarray, noise_per_mean: np.ndarray,
                      radius_px: float, guide_ridge: float = NETWORK_RIDGE) -> np.ndarray:
     """(H, W) ``source`` (H, W) filtered with two guides, ``guide`` (H, W) and ``source`` itself.
 
     In each Gaussian window of ``radius_px`` the output is ``a_g guide + a_s source + b``, least squares on
-    ``source`` with ridges ``guide_ridge`` on ``a_g`` and ``source_noise`` (H, W, the source's noise variance)
-    on ``a_s``; the coefficients are averaged over the windows covering a pixel (He et al. 2013). A window
-    where the source is flat and noise-free keeps its mean.
+    ``source`` with ridges ``guide_ridge`` on ``a_g`` and the source's noise variance on ``a_s``, taken as
+    Poisson-like: ``noise_per_mean`` (H, W) times the window's mean of the source (at least 0). The
+    coefficients are averaged over the windows covering a pixel (He et al. 2013). A window where the source
+    is flat and noise-free keeps its mean.
     """
     def mean(x: np.ndarray) -> np.ndarray:
         return gaussian_filter(x, radius_px)
@@ -146,7 +147,7 @@ def two_guide_filter(source: np.ndarray, guide: np.ndarray, source_noise: np.nda
     var_g = mean(guide * guide) - mean_g * mean_g + guide_ridge
     var_s = mean(source * source) - mean_s * mean_s
     cov = mean(guide * source) - mean_g * mean_s
-    regularised_s = var_s + source_noise
+    regularised_s = var_s + noise_per_mean * np.maximum(mean_s, 0.0)
     det = var_g * regularised_s - cov * cov
     solvable = det > 1e-12 * var_g  # 0 only where the source is flat and noise-free: its mean is then exact
     a_g = np.divide(regularised_s * cov - cov * var_s, det, out=np.zeros_like(det), where=solvable)
@@ -167,7 +168,7 @@ def sharpen_density(points: PointSet, density: np.ndarray, points_per_ink: float
     radius_px = GUIDE_RADIUS * spacing_px
     xy_px = map_points(points, density.shape)
     kde, width_px = spacing_kde(xy_px, density, full_ink_per_px)
-    noise = np.maximum(gaussian_filter(kde, radius_px), 0.0) / (4 * np.pi * width_px ** 2 * full_ink_per_px)
-    filtered = np.clip(two_guide_filter(kde, density, noise, radius_px), 0.0, 1.0)
+    poisson_noise_per_mean = 1.0 / (4 * np.pi * width_px ** 2 * full_ink_per_px)  # a Poisson KDE's variance / its mean
+    filtered = np.clip(two_guide_filter(kde, density, poisson_noise_per_mean, radius_px), 0.0, 1.0)
     weight = regularity_weight(clark_evans_ratio(xy_px, density, full_ink_per_px, REGULARITY_SIGMA * spacing_px))
     return weight * filtered + (1.0 - weight) * density, float(weight.mean())

@@ -51,6 +51,7 @@ import numpy as np
 from PIL import Image
 
 from data_gen.stipplers import METHODS, lloyd_stipple, poisson_disk
+from export.density import count_raster
 from export.evidence import ScaleChoice
 from export.runtime import DEFAULT_SYMMETRIES, Inference, OnnxModel, infer_map
 from patternshop_nn.baselines import KDE_BANDWIDTHS, kde_density
@@ -115,15 +116,6 @@ def resample(density: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return np.asarray(image.resize((shape[1], shape[0]), Image.Resampling.BOX), np.float64)
 
 
-def count_raster(xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) points per pixel of a grid over a domain of long side 1 (square pixels of side ``1 / max(H, W)``),
-    splatted bilinearly (:func:`synthesis.raster.point_raster` unclipped), so a regular pattern shows no moire."""
-    from synthesis.raster import point_raster
-
-    height, width = shape
-    return point_raster(np.asarray(xy).reshape(-1, 2), max(shape), clip=False)[:height, :width].astype(np.float64)
-
-
 def points_per_ink_of(n: int, density: np.ndarray) -> float:
     """The true scale of n points drawn from ``density``: points of a fully dark map of the same domain
     (the synthesiser's ``n = points_per_ink x mean density``)."""
@@ -141,7 +133,7 @@ def kde_L(xy: np.ndarray, shape: tuple[int, int], points_per_ink: float, bandwid
     """(H, W) L of a Gaussian KDE of points on a map of ``shape`` read at ``points_per_ink`` (the synthesiser's)."""
     height, width = shape
     full_ink_per_unit_square = points_per_ink * max(shape) ** 2 / (height * width)  # kde_density's convention
-    return 100.0 * (1.0 - kde_density(count_raster(xy, shape), full_ink_per_unit_square, bandwidth_px))
+    return 100.0 * (1.0 - kde_density(count_raster(np.asarray(xy) * max(shape), shape), full_ink_per_unit_square, bandwidth_px))
 
 
 def kde_scores(xy: np.ndarray, truth_L: np.ndarray, points_per_ink: float) -> dict:
@@ -300,7 +292,7 @@ def grey(L: np.ndarray) -> np.ndarray:
 
 def points_image(xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(H, W, 3) preview of points: each pixel darkened by its count (4 points: black)."""
-    counts = count_raster(xy, shape)
+    counts = count_raster(np.asarray(xy) * max(shape), shape)
     return grey(100.0 * (1.0 - np.clip(counts / 4.0, 0.0, 1.0)))
 
 

@@ -99,7 +99,7 @@ def test_two_guide_filter_is_finite_where_the_source_is_empty() -> None:
     source = np.zeros((32, 32))
     source[:, :8] = 0.5
     guide = np.linspace(0.0, 1.0, 32)[None, :].repeat(32, 0)
-    out = two_guide_filter(source, guide, np.where(source > 0, 0.01, 0.0), 2.0)
+    out = two_guide_filter(source, guide, np.full_like(source, 0.01), 2.0)
     assert np.isfinite(out).all() and np.abs(out[:, 20:]).max() < 1e-6
 
 
