@@ -9,10 +9,12 @@ caller to report. Outputs are written atomically, named after the input
   (:class:`~export.runtime.OnnxModel`), then takes chunks of point files: reads
   each and infers its map as ``infer`` does (:func:`export.runtime.infer_map`:
   scale chosen from the pattern unless given, L sharpened where the points are
-  regular, a, b filled where the evidence is thin) and writes a CIELAB TIFF. The network
-  is nearly all the work (about 80 ms of one core per 20k-point file at the
-  default scale, a 640 x 640 px raster), so N workers on N idle cores go about
-  N times as fast as one.
+  regular and smoothed where its detail is noise, a, b filled where the evidence
+  is thin) and writes a CIELAB TIFF. The network
+  is nearly all the work (about 80 ms of one core per reading of a 20k-point
+  file at the default scale, a 640 x 640 px raster; a file takes three or more:
+  the pattern, the two resamplings of the denoising, light areas' zooms), so N
+  workers on N idle cores go about N times as fast as one.
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
 
@@ -38,7 +40,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
 from tqdm import tqdm
 
 from synthesis.atomic import remove_stale_temporaries
@@ -203,6 +204,7 @@ class _InferenceSettings:
     bits: int
     memory_limit: float  # bytes one process may use for one file
     symmetries: int  # readings averaged per file (export.runtime.predict_symmetric)
+    denoise: bool  # L smoothed where its detail is noise (export.runtime.refine_density): two more readings per file
 
 
 def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxModel | None = None) -> list[tuple[int, FileResult]]:
@@ -230,7 +232,7 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
                          settings.memory_limit)
             with warnings.catch_warnings(record=True) as caught:  # the saturation warning of a given scale
                 warnings.simplefilter("always", PatternshopWarning)
-                inference = infer_map(points, model, scale=scale, symmetries=settings.symmetries)
+                inference = infer_map(points, model, scale=scale, symmetries=settings.symmetries, denoise=settings.denoise)
             notes = tuple(f"{job.source}: {warning.message}" for warning in caught)
             if scale.points_per_ink != POINTS_PER_INK:
                 notes += (f"{job.source}: read at {scale.describe()}",)
@@ -243,7 +245,8 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
 
 def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxModel, batch_size: int = 8,
                    workers: int = 2, bits: int = 16, overwrite: bool = False, progress: bool = False,
-                   points_per_ink: float | None = None, memory_limit: float = math.inf, symmetries: int = 1) -> list[FileResult]:
+                   points_per_ink: float | None = None, memory_limit: float = math.inf, symmetries: int = 1,
+                   denoise: bool = True) -> list[FileResult]:
     """Infer a map for each point file into ``out_dir/NAME.tif`` (``bits``-bit CIELAB); one result per source, in order.
 
     Args:
@@ -256,12 +259,14 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
         memory_limit: bytes all workers together may use; a file whose estimate exceeds its worker's share fails.
         symmetries: readings averaged per file (:func:`export.runtime.predict_symmetric`); 1 (default) for
             throughput, 8 for ``infer``'s reading at 8 times the network time.
+        denoise: smooth L where its detail is noise, as ``infer`` does (two more readings per file, about
+            twice the time); False keeps the detail.
     """
     if batch_size < 1 or bits not in (8, 16):
         raise PatternshopError(f"batch size must be >= 1 and bits 8 or 16, got {batch_size} and {bits}")
     jobs, results = _plan(sources, out_dir, ".tif", overwrite)
     processes = max(1, min(workers, math.ceil(len(jobs) / batch_size)))
-    settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes, symmetries)
+    settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes, symmetries, denoise)
     chunks = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
     if processes <= 1:
         convert, initializer, initargs = functools.partial(_convert_chunk, settings, model=model), None, ()

@@ -31,7 +31,9 @@
 :func:`infer_map` is what ``infer`` runs (:mod:`export.evidence`): the same
 reading, with the scale chosen from the pattern's own local density unless
 given; the ink scaled so that the map holds the pattern's point count; L
-sharpened from the points where they are regular (:mod:`export.density`); the
+sharpened from the points where they are regular and smoothed where its detail
+is no more than the noise of two Poisson resamplings of the map shows
+(:mod:`export.density`, :func:`refine_density`); the
 correlation of light areas read again at a zoom (as if the pattern held 2, 4
 ... 64 times fewer points per ink, so the network sees them at a density it
 reads correlation at); and a, b filled from the surroundings where even then
@@ -50,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from export.density import sharpen_density
+from export.density import REGULAR_NOISE_SHARE, denoise_density, poisson_resample, sharpen_density
 from export.edits import resize
 from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
                              fill_thin_correlation, local_evidence, summarise, zoom_levels)
@@ -63,6 +65,7 @@ DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "patternshop_nn" / "ass
 INPUT_NAME = "raster"
 OUTPUT_NAME = "map"
 SIZE_MULTIPLE = 64  # raster sides must be multiples of 2**levels of the U-Net (6 levels)
+BOOTSTRAP_SEED = 0  # the Poisson resamplings of :func:`bootstrap_noise` (infer is deterministic)
 BORDER_PX = 32  # raster pixels of mirrored pattern around the domain (the network sees no edge of the points there)
 SYMMETRIES = (1, 4, 8)  # readings averaged over this many symmetries of the square (1: none, 4: flips, 8: and transposes)
 DEFAULT_SYMMETRIES = 8
@@ -227,7 +230,8 @@ class Inference:
     ``pixels_per_unit`` its raster's pixels per unit of the domain (R). ``zooms`` are the readings made for correlation (1: the main one only), ``zoomed_share``
     the share of the map whose a, b came from a zoomed reading, ``calibration`` the ink factor applied
     (None: the network's L as it came), ``symmetries`` how many symmetries each reading averaged,
-    ``sharpened_share`` the share of L taken from the points rather than the network (:mod:`export.density`).
+    ``sharpened_share`` the share of L taken from the points rather than the network, ``denoised_px`` the
+    mean width (px) of the smoothing L took where its detail was noise (:mod:`export.density`).
     """
 
     lab_map: LabMap
@@ -240,13 +244,14 @@ class Inference:
     calibration: float | None = None
     symmetries: int = 1
     sharpened_share: float = 0.0
+    denoised_px: float = 0.0
 
     def report(self) -> dict:
         return {"width": self.lab_map.width, "height": self.lab_map.height, "symmetries": self.symmetries,
                 **self.scale.report(), **self.evidence.report(),
                 "correlation_zooms": list(self.zooms), "zoomed_share": round(self.zoomed_share, 4),
                 "ink_calibration_factor": None if self.calibration is None else round(self.calibration, 4),
-                "sharpened_share": round(self.sharpened_share, 4)}
+                "sharpened_share": round(self.sharpened_share, 4), "denoised_px": round(self.denoised_px, 3)}
 
 
 def dihedral(array: np.ndarray, code: int, inverse: bool = False) -> np.ndarray:
@@ -290,9 +295,54 @@ def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shap
     return lab_map, output, pixels_per_unit
 
 
+def bootstrap_noise(points: PointSet, model: OnnxModel, density: np.ndarray, points_per_ink: float,
+                    symmetries: int = DEFAULT_SYMMETRIES) -> np.ndarray:
+    """(H, W) a sample of the noise in the network's calibrated density of a pattern, its ``density`` (H, W)
+    in [0, 1] at ``points_per_ink``: the difference of two readings of Poisson resamplings of that density
+    (:func:`export.density.poisson_resample`, seed :data:`BOOTSTRAP_SEED`), over sqrt(2). A parametric
+    bootstrap: it holds the noise a Poisson pattern of this density shows through the network, with its
+    amplitude and its grain."""
+    shape = density.shape
+    px_per_unit = shape[1] / points.domain[0]
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    readings = []
+    for _ in range(2):
+        xy = poisson_resample(density, points_per_ink / density.size, rng) / px_per_unit
+        resampled = PointSet(np.minimum(xy, np.asarray(points.domain)), points.domain)
+        lab_map, _, _ = read_pattern(resampled, model, points_per_ink, shape, symmetries)
+        readings.append(calibrate_density(lab_map.density(), len(resampled) / points_per_ink)[0])
+    return (readings[0] - readings[1]) / math.sqrt(2.0)
+
+
+def refine_density(points: PointSet, model: OnnxModel, density: np.ndarray, points_per_ink: float, sharpen: bool,
+                   denoise: bool, symmetries: int = DEFAULT_SYMMETRIES) -> tuple[np.ndarray, float, float]:
+    """(density (H, W), share sharpened, mean smoothing width in px) of the network's calibrated ``density``
+    (H, W) in [0, 1] of ``points`` at ``points_per_ink``, with the ink restored.
+
+    ``denoise``: the network's density is smoothed where its detail is what a Poisson pattern's noise
+    would give (:func:`export.density.denoise_density`, the noise from :func:`bootstrap_noise`).
+    ``sharpen``: then taken from the points where they are regular
+    (:func:`export.density.sharpen_density`), and that part smoothed where its detail is what
+    :data:`export.density.REGULAR_NOISE_SHARE` of that noise would give.
+    """
+    ink = len(points) / points_per_ink
+    refined, width, weight = density, np.zeros(density.shape), np.zeros(density.shape)
+    noise = bootstrap_noise(points, model, density, points_per_ink, symmetries) if denoise else None
+    if denoise:
+        refined, width = denoise_density(refined, noise)
+    if sharpen:
+        refined, weight = sharpen_density(points, refined, points_per_ink)
+        if denoise:
+            refined, _ = calibrate_density(refined, ink)
+            refined, regular_width = denoise_density(refined, noise, REGULAR_NOISE_SHARE * weight)
+            width = np.hypot(width, regular_width)  # two Gaussian smoothings in a row: widths add in quadrature
+    refined, _ = calibrate_density(refined, ink)
+    return refined, float(weight.mean()), float(width.mean())
+
+
 def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
               fill_thin: bool = True, calibrate: bool = True, symmetries: int = DEFAULT_SYMMETRIES,
-              sharpen: bool = True) -> Inference:
+              sharpen: bool = True, denoise: bool = True) -> Inference:
     """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
 
     Args:
@@ -308,6 +358,8 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
             False keeps the network's L.
         sharpen: with ``calibrate``, take L from the points where they are regular
             (:func:`export.density.sharpen_density`), then restore the ink; a, b are read as without it.
+        denoise: with ``calibrate``, smooth L where its detail is what the pattern's own noise explains
+            (:func:`refine_density`); a, b are read as without it.
         symmetries: readings averaged over this many symmetries of the square (:func:`predict_symmetric`).
     """
     scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
@@ -338,13 +390,13 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
     source = False
     if fill_thin:
         lab_map, source = fill_thin_correlation(lab_map, evidence)
-    sharpened_share = 0.0
-    if calibrate and sharpen:  # L only: the zoom and the fill above read the network's density
-        sharpened, sharpened_share = sharpen_density(points, density, scale.points_per_ink)
-        sharpened, _ = calibrate_density(sharpened, len(points) / scale.points_per_ink)
-        lab_map = LabMap(np.concatenate([100.0 * (1.0 - sharpened[..., None]), lab_map.ab], axis=-1))
+    sharpened_share = denoised_px = 0.0
+    if calibrate and (sharpen or denoise) and len(points):  # L only: the zoom and the fill above read the network's density
+        refined, sharpened_share, denoised_px = refine_density(points, model, density, scale.points_per_ink, sharpen,
+                                                               denoise, symmetries)
+        lab_map = LabMap(np.concatenate([100.0 * (1.0 - refined[..., None]), lab_map.ab], axis=-1))
     return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source), output, pixels_per_unit, zooms,
-                     zoomed_share, factor, symmetries, sharpened_share)
+                     zoomed_share, factor, symmetries, sharpened_share, denoised_px)
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

@@ -4,7 +4,8 @@ Every input is made here, by other methods than the synthesiser the model was
 trained on, at the synthesiser's scale (50,000 points per fully dark unit
 square unless said otherwise), and read the way ``patternshop infer`` reads it
 (:func:`export.runtime.infer_map`: automatic scale, ink calibrated to the points,
-L sharpened where the points are regular, light areas' correlation read zoomed,
+L sharpened where the points are regular and smoothed where its detail is noise,
+light areas' correlation read zoomed,
 thin correlation filled; ``--raw``: the
 network's output as it came).
 
@@ -368,7 +369,8 @@ def targets(results: dict) -> list[dict]:
 
 def markdown(results: dict) -> str:
     """The results as markdown tables: targets, stipplings, stationary processes, point counts."""
-    reading = ("as infer makes them (8 symmetries averaged, ink calibrated, L sharpened where the points are regular, "
+    reading = ("as infer makes them (8 symmetries averaged, ink calibrated, L sharpened where the points are regular and "
+               "smoothed where its detail is noise, "
                "light areas read zoomed, thin a,b filled)" if results["fill_thin"] else "as the network gave them (--raw)")
     lines = [f"# Out-of-distribution evaluation: {results.get('model_name') or results['model']}", "",
              f"{'Quick' if results['quick'] else 'Full'} run, seed {results['seed']}, {results['seconds']} s, maps {reading}.", "",

@@ -94,6 +94,30 @@ def test_convert_with_good_files_only_exits_0(points_dir, tiny_onnx, tmp_path, c
     assert status == 0 and "wrote 3 of 3 files" in err
 
 
+def test_convert_denoises_as_infer_does_unless_told_not_to(tmp_path, capsys):
+    import torch
+
+    from export.runtime import infer_map
+    from synthesis.generators import generate
+
+    torch.manual_seed(0)  # tiny_onnx's weights depend on the tests run before; denoising's effect on them does too
+    tiny_onnx = tmp_path / "tiny.onnx"
+    export_onnx(DualBranchUNet(base_channels=4, max_channels=8), tiny_onnx, {"name": "tiny"})
+    folder = tmp_path / "points"
+    folder.mkdir()
+    points = PointSet(generate("white", 10_000, seed=1))
+    write_points(points, folder / "a.txt")
+    base = ["convert", str(folder), "--model", str(tiny_onnx), "--workers", "1"]
+    assert run([base[0], base[1], str(tmp_path / "plain"), *base[2:], "--no-denoise"], capsys)[0] == 0
+    assert run([base[0], base[1], str(tmp_path / "denoised"), *base[2:]], capsys)[0] == 0
+    model = OnnxModel(tiny_onnx)
+    written = {folder: read_map(tmp_path / folder / "a.tif").L for folder in ("plain", "denoised")}
+    for folder, denoise in (("plain", False), ("denoised", True)):
+        np.testing.assert_allclose(written[folder], infer_map(read_points(tmp_path / "points" / "a.txt"), model, symmetries=1,
+                                                              denoise=denoise).lab_map.L, atol=0.01)
+    assert np.abs(written["denoised"] - written["plain"]).max() > 0.1  # the flag reached the workers
+
+
 def test_resynthesize_two_tiny_maps(tmp_path, capsys):
     folder = tmp_path / "maps"
     folder.mkdir()

@@ -1,4 +1,5 @@
-"""L from the points where they are regular (export.density): Clark-Evans ratio, two-guide filter, sharpening."""
+"""L from the points where they are regular (export.density): Clark-Evans ratio, two-guide filter, sharpening;
+L smoothed where its detail is noise: Poisson resampling and scale selection."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ from scipy.ndimage import gaussian_filter
 from scipy.stats import qmc
 
 from data_gen.stipplers import lloyd_stipple, random_stipple
-from export.density import (POISSON_RATIO, REGULAR_RATIO, SHARP_BANDWIDTH, clark_evans_ratio, count_raster, map_points,
-                            regularity_weight, sharpen_density, spacing_kde, two_guide_filter)
+from export.density import (POISSON_RATIO, REGULAR_RATIO, SHARP_BANDWIDTH, clark_evans_ratio, count_raster, denoise_density,
+                            map_points, poisson_resample, regularity_weight, sharpen_density, smoothing_levels, spacing_kde,
+                            two_guide_filter)
 from synthesis.generators import generate
 from synthesis.points import PointSet
 
@@ -72,7 +74,8 @@ def test_sharpening_restores_edges_of_regular_stipplings_and_leaves_poisson_ones
     else:
         xy = random_stipple(truth, n, (1.0, 1.0), np.random.default_rng(5))
     network = gaussian_filter(truth, 4.0)  # what a reader at a fixed bandwidth of a few spacings gives
-    sharpened, share = sharpen_density(PointSet(xy), network, points_per_ink)
+    sharpened, weight = sharpen_density(PointSet(xy), network, points_per_ink)
+    share = weight.mean()
     edge = slice(SIZE // 2 - 6, SIZE // 2 + 6)
     if stippler == "lloyd":
         assert share > 0.9
@@ -85,8 +88,8 @@ def test_sharpening_restores_edges_of_regular_stipplings_and_leaves_poisson_ones
 def test_sharpening_is_a_no_op_below_two_points() -> None:
     density = np.full((16, 16), 0.01)
     for xy in (np.zeros((0, 2)), np.array([[0.5, 0.5]])):
-        same, share = sharpen_density(PointSet(xy), density, 50_000.0)
-        assert share == 0.0 and np.array_equal(same, density)
+        same, weight = sharpen_density(PointSet(xy), density, 50_000.0)
+        assert weight.shape == density.shape and not weight.any() and np.array_equal(same, density)
 
 
 def test_count_raster_keeps_the_points_of_a_non_square_map() -> None:
@@ -115,3 +118,58 @@ def test_spacing_kde_keeps_the_points_and_shows_no_dots_in_light_areas() -> None
     inner = (slice(8, -8), slice(8, -8))
     fixed = gaussian_filter(count_raster(xy, density.shape), SHARP_BANDWIDTH) / full_ink_per_px
     assert np.std(estimate[inner]) / np.mean(estimate[inner]) < 0.1 < 0.25 < np.std(fixed[inner]) / np.mean(fixed[inner])
+
+
+def test_smoothing_levels_double_up_to_a_sixteenth_of_the_long_side() -> None:
+    assert smoothing_levels((256, 256)) == (1.0, 2.0, 4.0, 8.0, 16.0)
+    assert smoothing_levels((64, 512)) == (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+    assert smoothing_levels((8, 8)) == (1.0,)
+
+
+def test_poisson_resample_draws_the_smoothed_density_within_its_pixels() -> None:
+    density = np.zeros((64, 96))
+    density[:, 48:] = 0.5
+    full_ink_per_px = 4.0
+    xy = poisson_resample(density, full_ink_per_px, np.random.default_rng(0))
+    expected = density.sum() * full_ink_per_px
+    assert abs(len(xy) - expected) < 4 * np.sqrt(expected)
+    assert (xy >= 0).all() and (xy[:, 0] < 96).all() and (xy[:, 1] < 64).all()
+    assert (xy[:, 0] < 40).mean() < 0.001  # the empty half stays empty beyond the 2-px smoothing of its edge
+    again = poisson_resample(density, full_ink_per_px, np.random.default_rng(0))
+    np.testing.assert_array_equal(xy, again)
+
+
+def noisy(truth: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(truth + correlated noise, an independent sample of that noise), each shaped like ``truth``."""
+    rng = np.random.default_rng(seed)
+    grain = lambda: gaussian_filter(rng.normal(0.0, 0.12, truth.shape), 1.5)  # noise with a few pixels' grain
+    return truth + grain(), grain()
+
+
+def test_denoising_smooths_a_flat_area_wide() -> None:
+    truth = np.full((SIZE, SIZE), 0.4)
+    reading, noise = noisy(truth, 1)
+    denoised, width = denoise_density(reading, noise)
+    assert np.median(width) == pytest.approx(8.0)  # the widest level on 128 px
+    assert np.std(denoised) < 0.45 * np.std(reading)  # what an 8-px blur leaves of this noise on 128 px: 0.34
+
+
+def test_denoising_keeps_the_edge_that_a_global_smoothing_blurs() -> None:
+    truth = step_density()
+    reading, noise = noisy(truth, 2)
+    denoised, width = denoise_density(reading, noise)
+    blurred = gaussian_filter(reading, 4.0)
+    edge = (slice(16, -16), slice(SIZE // 2 - 3, SIZE // 2 + 3))
+    assert np.abs(denoised - truth)[edge].mean() < 0.5 * np.abs(blurred - truth)[edge].mean()
+    assert np.abs(denoised - truth).mean() < 0.7 * np.abs(reading - truth).mean()
+    assert width[:, SIZE // 2 - 2:SIZE // 2 + 2].mean() < 1.0 < width[:, :16].mean()
+
+
+def test_denoising_keeps_detail_the_noise_cannot_explain() -> None:
+    truth = step_density()
+    reading, noise = noisy(truth, 3)
+    kept, width = denoise_density(reading, noise, noise_scale=0.0)  # no noise expected: nothing but flat areas smoothed
+    np.testing.assert_allclose(kept, reading, atol=1e-6)
+    assert not width.any()
+    clean, _ = denoise_density(truth, noise)  # a noise-free step keeps its edge
+    assert np.abs(clean - truth).max() < 0.02

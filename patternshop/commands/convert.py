@@ -51,6 +51,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     convert.add_argument("--symmetries", type=int, choices=(1, 4, 8), default=1,
                          help="average each file's network readings over this many symmetries of the square (default 1, for "
                          "throughput; 8 reads as infer does, at 8 times the network time)")
+    convert.add_argument("--no-denoise", action="store_true",
+                         help="keep L's fine detail even where it is only noise, about twice as fast (default: L smoothed "
+                         "where its detail is noise, as infer does, from two more network readings per file)")
     convert.add_argument("--points-per-ink", type=positive_float, metavar="K",
                          help=f"points of a fully dark map: the scale point files are read at (default: chosen per file "
                          f"as infer does, {POINTS_PER_INK} unless the pattern is denser), and maps synthesised at with "
@@ -94,7 +97,7 @@ def run_convert(args: argparse.Namespace) -> int:
         check_palette(model)
         results = convert_points(sources, args.out_dir, model, batch_size=args.batch_size, workers=args.workers,
                                  bits=args.bits, overwrite=args.overwrite, progress=progress, points_per_ink=args.points_per_ink,
-                                 memory_limit=memory_limit, symmetries=args.symmetries)
+                                 memory_limit=memory_limit, symmetries=args.symmetries, denoise=not args.no_denoise)
     for result in results:
         for note in result.warnings:
             warnings.warn(note, PatternshopWarning, stacklevel=1)

@@ -27,7 +27,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         "the map holds the pattern's point count (an empty pattern gives a white map). Where the points are regular "
         "(blue noise, Lloyd, dithering: their nearest neighbours farther apart than a Poisson pattern's), L is sharpened from "
         "the points themselves, whose fine counts are nearly noise-free there; Poisson and clustered areas keep the "
-        "network's L. Light areas (density below 0.6) "
+        "network's L. L is then smoothed wherever its detail is no larger than the noise the pattern's own point count "
+        "explains (measured by reading two Poisson resamplings of the map), wide in flat areas, not across edges. "
+        "Light areas (density below 0.6) "
         "take a,b from readings at 2, 4 ... 64 times fewer points per ink, where the network sees their "
         "arrangement at a density it reads correlation at; where even then too few points show correlation, a,b are "
         "filled from the surrounding well-observed correlation and the report says how much of the map that is. "
@@ -50,10 +52,14 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        "correlation or the map holds no ink (default: both)")
     infer.add_argument("--no-calibrate", action="store_true",
                        help="keep the network's L (default: ink scaled so that the map holds the pattern's point count; "
-                       "implies --no-sharpen)")
+                       "implies --no-sharpen and --no-denoise)")
     infer.add_argument("--no-sharpen", action="store_true",
                        help="keep the network's L where the points are regular too (default: L sharpened there from a "
                        "density estimate of the points about one point spacing wide, guided by the network's L)")
+    infer.add_argument("--no-denoise", action="store_true",
+                       help="keep L's fine detail even where it is only noise (default: L smoothed, from 1 px up to 1/16 of the "
+                       "map, where the detail is no larger than a Poisson pattern of the same density shows through the "
+                       "network; 2 more readings)")
     infer.add_argument("--symmetries", type=int, choices=(1, 4, 8), default=8,
                        help="average the network's readings over this many symmetries of the square: 8 (default) flips and "
                        "transposes, 4 flips only, 1 a single run (8 times faster)")
@@ -103,7 +109,8 @@ def run_infer(args: argparse.Namespace) -> None:
     check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
                  f"inferring a {width} px wide map from a {side}x{side} px raster ({scale.points_per_ink:g} points per ink)")
     inference = infer_map(points, model, width=args.width, scale=scale, fill_thin=not args.no_fill,
-                          calibrate=not args.no_calibrate, symmetries=args.symmetries, sharpen=not args.no_sharpen)
+                          calibrate=not args.no_calibrate, symmetries=args.symmetries, sharpen=not args.no_sharpen,
+                          denoise=not args.no_denoise)
     report = {"points": args.points, "n": len(points), "model": str(model.path), "output": str(output), **inference.report()}
     with all_or_nothing():
         write_map(inference.lab_map, output, bits=args.bits)
@@ -120,6 +127,8 @@ def run_infer(args: argparse.Namespace) -> None:
         print(f"ink scaled by {inference.calibration:.3g} to hold the {len(points)} points", file=sys.stderr)
     if inference.sharpened_share > 0:
         print(f"L of {100 * inference.sharpened_share:.1f}% of the map sharpened from its regular points", file=sys.stderr)
+    if inference.denoised_px > 0:
+        print(f"L smoothed where its detail is noise: {inference.denoised_px:.1f} px wide on average", file=sys.stderr)
     if inference.zoomed_share > 0:
         zooms = ", ".join(f"{zoom}x" for zoom in inference.zooms[1:])
         print(f"a,b of {100 * inference.zoomed_share:.1f}% of the map (its light areas) read at fewer points per ink ({zooms})",
