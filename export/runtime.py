@@ -327,8 +327,8 @@ def refine_density(points: PointSet, model: OnnxModel, density: np.ndarray, poin
     """
     ink = len(points) / points_per_ink
     refined, width, weight = density, np.zeros(density.shape), np.zeros(density.shape)
-    noise = bootstrap_noise(points, model, density, points_per_ink, symmetries) if denoise else None
     if denoise:
+        noise = bootstrap_noise(points, model, density, points_per_ink, symmetries)
         refined, width = denoise_density(refined, noise)
     if sharpen:
         refined, weight = sharpen_density(points, refined, points_per_ink)
