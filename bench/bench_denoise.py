@@ -7,7 +7,7 @@
 
    - Poisson: the network's reading over the sample. Everything in it is noise, so ~1 says the sample
      holds the noise's energy and grain.
-   - Poisson-disk and Lloyd: the sharpened L (``export.density.sharpen_density``) over the sample. Their
+   - Poisson-disk and Lloyd: the sharpened L (``export.runtime.refine_density``, no denoising) over the sample. Their
      median over densities and widths is what ``export.density.REGULAR_NOISE_SHARE`` states.
 
 2. **Cost.** ``infer_map`` with and without denoising on a 25,000-point Lloyd stippling of scikit-image's
@@ -29,9 +29,9 @@ from scipy.ndimage import gaussian_filter
 from common import median_seconds, save_results  # bench/ is on sys.path when run as a script
 
 from data_gen.stipplers import lloyd_stipple
-from export.density import REGULAR_NOISE_SHARE, sharpen_density
-from export.evidence import ScaleChoice, calibrate_density
-from export.runtime import DEFAULT_MODEL, OnnxModel, bootstrap_noise, infer_map
+from export.density import REGULAR_NOISE_SHARE
+from export.evidence import ScaleChoice
+from export.runtime import DEFAULT_MODEL, OnnxModel, bootstrap_noise, infer_map, refine_density
 from patternshop_nn.ood import STATIONARY, picture_density, points_per_ink_of
 from synthesis.points import PointSet
 
@@ -55,10 +55,8 @@ def noise_model(model: OnnxModel, densities: tuple[float, ...]) -> dict:
             reading = infer_map(points, model, scale=ScaleChoice(POINTS_PER_INK, False), sharpen=False, denoise=False)
             network = reading.lab_map.density().astype(np.float64)
             noise = bootstrap_noise(points, model, network, POINTS_PER_INK)
-            if process == "poisson":
-                measured = network
-            else:
-                measured = calibrate_density(sharpen_density(points, network, POINTS_PER_INK)[0], len(points) / POINTS_PER_INK)[0]
+            measured = network if process == "poisson" else refine_density(points, model, network, POINTS_PER_INK,
+                                                                            sharpen=True, denoise=False)[0]
             ratios = [detail_energy(measured, s) / detail_energy(noise, s) for s in WIDTHS_PX]
             if process != "poisson":
                 regular_ratios += ratios
