@@ -32,7 +32,7 @@ from onnx import numpy_helper
 
 from common import median_seconds, save_results  # bench/ is on sys.path when run as a script
 
-from export.onnx import export_onnx, load_generator
+from patternshop_nn.onnx_export import export_onnx, load_generator
 from export.runtime import DEFAULT_MODEL, OnnxModel, map_width, output_to_map, pattern_raster
 from patternshop_nn.module import Pix2PixModule
 from patternshop_nn.networks import DualBranchUNet

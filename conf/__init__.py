@@ -1,6 +1,5 @@
-"""Hydra configuration files.
+"""Hydra configuration files (YAML only; this file makes the folder installable as package data).
 
-This folder is installed as the package ``conf`` so that Hydra finds it both in
-a source checkout (``config_path="../conf"``) and in an installed copy
-(``pkg://conf``).
+In a checkout they are the top-level ``conf/`` folder; an installed wheel holds them as ``patternshop/conf``.
+Code finds them with :data:`data_gen.provenance.CONF_DIR`, never by importing a ``conf`` module.
 """

@@ -12,13 +12,15 @@ from pathlib import Path
 
 import numpy as np
 
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+_ROOT = Path(__file__).resolve().parent.parent
+#: The Hydra configs: ``conf/`` in a checkout (and an editable install), ``patternshop/conf`` in an installed wheel.
+CONF_DIR = _ROOT / "conf" if (_ROOT / "conf" / "pairs.yaml").is_file() else _ROOT / "patternshop" / "conf"
 
 
 def git_commit() -> str:
     """HEAD of the checkout the code runs from, or ``"unknown"``."""
     try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=CONF_DIR).stdout.strip()
+        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=_ROOT).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 

@@ -4,7 +4,7 @@
    points synthesised from ``examples/logo.tif`` by ``examples/make_examples.py``).
 2. **Infer** its map with the network (ONNX Runtime, :func:`export.runtime.points_to_map`),
    reading the pattern at ``--points-per-ink`` points for a fully dark map.
-3. **Edit** the map as in the paper's Fig. 1 (:mod:`export.edits`): the background
+3. **Edit** the map as in the paper's Fig. 1 (:mod:`synthesis.edits`): the background
    (where the inferred density is below ``--background-below``) gets another
    preset correlation (``--preset``, default step noise) and a density
    gradient from top to bottom (``--gradient``).
@@ -36,7 +36,7 @@ import torch
 from PIL import Image, ImageDraw, ImageFont
 from scipy.ndimage import gaussian_filter
 
-from export.edits import density_gradient, set_correlation
+from synthesis.edits import density_gradient, set_correlation
 from export.runtime import DEFAULT_MODEL, OnnxModel, check_palette, pattern_raster, points_to_map
 from patternshop.cli import OneLineErrorParser
 from synthesis.atomic import atomic_path, atomic_write_text

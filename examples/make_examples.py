@@ -25,13 +25,13 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
+from data_gen.provenance import CONF_DIR
 from synthesis.labmap import LabMap
 from synthesis.mapio import read_map, write_map, write_preview
 from synthesis.palette import load_palette
 from synthesis.points import write_points
 from synthesis.synthesize import point_count, synthesize
 
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 def pixel_centres(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

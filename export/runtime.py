@@ -1,6 +1,6 @@
 """ONNX Runtime inference on the CPU: point sets in, maps out (no torch needed).
 
-:class:`OnnxModel` wraps an exported generator (:mod:`export.onnx`);
+:class:`OnnxModel` wraps an exported generator (:mod:`patternshop_nn.onnx_export`);
 :func:`points_to_map` turns a :class:`~synthesis.points.PointSet` into a
 :class:`~synthesis.labmap.LabMap` with the function the network was trained on:
 
@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from export.density import REGULAR_NOISE_SHARE, denoise_density, poisson_resample, sharpen_density
-from export.edits import resize
+from synthesis.edits import resize
 from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
                              fill_thin_correlation, local_evidence, summarise, zoom_levels)
 from synthesis.errors import PatternshopError, PatternshopWarning
@@ -82,7 +82,7 @@ class OnnxModel:
 
     Attributes:
         path: the model file.
-        metadata: the model's metadata (see :mod:`export.onnx`), values JSON-decoded.
+        metadata: the model's metadata (see :mod:`patternshop_nn.onnx_export`), values JSON-decoded.
         raster_size: the training rasters' side (256); :meth:`predict` takes any multiple of 64.
         threads: ONNX Runtime intra-op threads.
 

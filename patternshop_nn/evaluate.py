@@ -143,7 +143,7 @@ def onnx_model_path(model: str | None, trained_points_per_ink: float | None, scr
         return path
     if trained_points_per_ink is None:
         raise PatternshopError(f"{path}: a checkpoint does not record its training scale; pass --trained-points-per-ink")
-    from export.onnx import export_onnx
+    from patternshop_nn.onnx_export import export_onnx
 
     exported = scratch / f"{path.stem}.onnx"
     export_onnx(path, exported, {"points_per_ink": trained_points_per_ink, "name": path.stem})

@@ -31,6 +31,7 @@ import lightning as L
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from data_gen.provenance import CONF_DIR
 from synthesis.errors import PatternshopError
 
 
@@ -130,7 +131,7 @@ def train(cfg: DictConfig) -> dict:
     return summary
 
 
-@hydra.main(config_path="pkg://conf", config_name="train", version_base=None)
+@hydra.main(config_path=str(CONF_DIR), config_name="train", version_base=None)
 def main(cfg: DictConfig) -> None:
     try:
         summary = train(cfg)

@@ -1,4 +1,4 @@
-"""Batch conversion (`patternshop convert`, export.convert) and map edits (`patternshop edit`, export.edits)."""
+"""Batch conversion (`patternshop convert`, export.convert) and map edits (`patternshop edit`, synthesis.edits)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from conftest import run_cli
 from PIL import Image
 
 from export.convert import FAILED, SKIPPED, WRITTEN, convert_points, map_files, point_files
-from export.edits import density_gradient, expand, linear_ramp, read_region, rect_region, resize, set_correlation
-from export.onnx import export_onnx
+from synthesis.edits import density_gradient, expand, linear_ramp, read_region, rect_region, resize, set_correlation
+from patternshop_nn.onnx_export import export_onnx
 from export.runtime import OnnxModel
 from patternshop_nn.networks import DualBranchUNet
 from synthesis.errors import PatternshopError

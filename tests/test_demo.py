@@ -13,7 +13,7 @@ import pytest
 import torch
 from PIL import Image
 
-from export.onnx import export_onnx
+from patternshop_nn.onnx_export import export_onnx
 from patternshop_nn.module import Pix2PixModule
 from synthesis.points import read_points
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from data_gen.stipplers import METHODS
-from export.onnx import export_onnx
+from patternshop_nn.onnx_export import export_onnx
 from patternshop_nn import evaluate, ood
 from patternshop_nn.networks import DualBranchUNet
 from synthesis.labmap import LabMap

@@ -12,7 +12,7 @@ from conftest import run_cli
 import torch
 
 from data_gen.provenance import file_sha256
-from export.onnx import OPSET, export_onnx, max_abs_difference
+from patternshop_nn.onnx_export import OPSET, export_onnx, max_abs_difference
 from export.runtime import BORDER_PX, OnnxModel, check_palette, mirrored, pattern_raster, points_to_map
 from patternshop_nn.module import Pix2PixModule
 from synthesis.errors import PatternshopError, PatternshopWarning

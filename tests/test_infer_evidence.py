@@ -13,7 +13,7 @@ import torch
 from export.evidence import (DENSE_THRESHOLD, EVIDENCE_RADIUS_PX, INKED_DENSITY, MAX_ZOOM, WORK_DENSITY, ZOOM_NEIGHBOURHOOD_PX, ScaleChoice, blend_zoomed,
                              calibrate_density, choose_points_per_ink, correlation_zoom, fill_thin_correlation, local_evidence,
                              summarise, zoom_levels)
-from export.onnx import export_onnx
+from patternshop_nn.onnx_export import export_onnx
 from patternshop_nn.networks import DualBranchUNet
 from synthesis.generators import generate
 from synthesis.labmap import LabMap

@@ -279,7 +279,7 @@ def test_standins_are_read_by_their_makers(layout: str, tmp_path: Path) -> None:
 
 
 def test_score_compares_the_model_with_the_baselines(pair_dir: Path, tmp_path: Path) -> None:
-    from export.onnx import export_onnx
+    from patternshop_nn.onnx_export import export_onnx
     from export.runtime import OnnxModel
     from patternshop_nn.evaluate import score
 
@@ -365,7 +365,7 @@ def test_new_runs_use_resize_convolution_and_the_shipped_config_still_builds() -
 
 
 def test_resize_convolution_exports_with_dynamic_sizes(tmp_path: Path) -> None:
-    from export.onnx import export_onnx, max_abs_difference
+    from patternshop_nn.onnx_export import export_onnx, max_abs_difference
 
     torch.manual_seed(0)
     net = DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest").eval()
@@ -378,7 +378,7 @@ def test_resize_convolution_exports_with_dynamic_sizes(tmp_path: Path) -> None:
 
 def test_a_checkpoint_from_before_the_upsample_option_loads_as_transposed(tmp_path: Path) -> None:
     """The shipped model's checkpoint records no ``upsample``: it loads (strictly) into the transposed architecture."""
-    from export.onnx import load_generator
+    from patternshop_nn.onnx_export import load_generator
 
     old = Pix2PixModule(base_channels=4, max_channels=8, upsample="transposed")
     hparams = {key: value for key, value in dict(old.hparams).items() if key != "upsample"}

@@ -1,4 +1,4 @@
-"""Map command: ``edit`` (correlation of a region, density gradient, larger canvas), see :mod:`export.edits`."""
+"""Map command: ``edit`` (correlation of a region, density gradient, larger canvas), see :mod:`synthesis.edits`."""
 
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
 
 
 def run_edit(args: argparse.Namespace) -> None:
-    from export.edits import density_gradient, expand, read_region, rect_region, set_correlation
+    from synthesis.edits import density_gradient, expand, read_region, rect_region, set_correlation
     from synthesis.errors import PatternshopError
     from synthesis.atomic import all_or_nothing
     from synthesis.mapio import map_size, read_map, write_map, write_preview

@@ -156,7 +156,7 @@ def run_export(args: argparse.Namespace) -> None:
     import numpy as np
 
     from data_gen.provenance import file_sha256
-    from export.onnx import OPSET, export_onnx, load_generator, max_abs_difference, metadata_from_pairs
+    from patternshop_nn.onnx_export import OPSET, export_onnx, load_generator, max_abs_difference, metadata_from_pairs
     from synthesis.raster import RASTER_SIZE
 
     output = check_output(args.output, args.checkpoint, suffixes=(".onnx",))
