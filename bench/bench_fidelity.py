@@ -1,4 +1,4 @@
-"""Fidelity benchmark (issue 12): is a synthesised pattern a true sample of its map?
+"""Fidelity benchmark: is a synthesised pattern a true sample of its map?
 
 Run with ``make bench`` (or ``python bench/bench_fidelity.py [--quick] [--only CASE]``);
 results go to ``out/bench/fidelity.json`` (``fidelity_quick.json`` for --quick/--only runs)

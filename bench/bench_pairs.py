@@ -1,4 +1,4 @@
-"""Training-pair benchmark (issue 5): throughput, size on disk, quality of the synthesised points.
+"""Training-pair benchmark: throughput, size on disk, quality of the synthesised points.
 
 * Throughput: ``data_gen.pairs.generate`` with 2 workers (1 torch thread each)
   on fresh procedural items, at the default model's count

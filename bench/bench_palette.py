@@ -1,4 +1,4 @@
-"""Palette benchmark (issue 13): is a colour one look, and one look one colour?
+"""Palette benchmark: is a colour one look, and one look one colour?
 
 ``python bench/bench_palette.py [--palette PATH] [--name NAME] [--round-trips K]``
 measures a palette asset (default: the shipped one) on patterns from generators
@@ -21,7 +21,7 @@ written here, independent of the corpus generators (:mod:`data_gen.families`,
   (target <= 40 %), and the build's recorded stress-1 and trustworthiness
   (targets: no worse than 0.042 and 0.986).
 * where every preset lands (a, b, hue, chroma), and the decode time of a
-  10,000-point pattern (target <= 1 s; issue 3).
+  10,000-point pattern (target <= 1 s).
 """
 
 from __future__ import annotations

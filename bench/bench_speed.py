@@ -1,4 +1,4 @@
-"""Synthesis speed benchmark (issue 16): wall time and peak memory from 10k to 1M points, start-up, and references.
+"""Synthesis speed benchmark: wall time and peak memory from 10k to 1M points, start-up, and references.
 
 Every run is a child process (its peak resident memory is its own; nothing
 warm is shared): a constant map (L = 50, the ``blue`` preset) on the unit

@@ -1,4 +1,4 @@
-"""Synthesis benchmark (issue 4, updated for synthesis v2): estimator bias, realisability, sharp edges, density, scaling.
+"""Synthesis benchmark: estimator bias, realisability, sharp edges, density, scaling.
 
 The statistics here use the project's own estimator; ``bench_fidelity.py``
 checks the outputs with statistics written independently of it.

@@ -17,7 +17,9 @@ Gaussian kernel, annulus normalisation so that it is finite and unbiased from
 r = 0), nearest-neighbour statistics (stacked fraction, minimum, coefficient
 of variation), largest empty circles (Delaunay circumcircles), strip density
 profiles across edges and along the border, density PSNR against a target
-after a Gaussian blur, and a weighted Lloyd (Voronoi) stippler as reference.
+after a Gaussian blur. The reference stipplers (weighted Lloyd, its stratified
+start, scipy's Poisson-disk) come from :mod:`data_gen.stipplers` and are
+re-exported here.
 """
 
 from __future__ import annotations

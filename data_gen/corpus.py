@@ -21,17 +21,17 @@ import functools
 import hashlib
 import json
 import os
-import multiprocessing
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from data_gen.executor import Executor, Lost
 from synthesis.atomic import atomic_path
+from synthesis.errors import PatternshopError
 
 
 @dataclass(frozen=True)
@@ -107,8 +107,8 @@ def _make_chunk(config: CorpusConfig, indices: list[int]) -> dict[str, np.ndarra
     return {name: np.asarray(values) for name, values in out.items()}
 
 
-def build_corpus(config: CorpusConfig, cache_dir: str | os.PathLike, workers: int = 2) -> dict[str, np.ndarray]:
-    """All exemplars, from the chunk cache where present; missing chunks are computed in parallel.
+def build_corpus(config: CorpusConfig, cache_dir: str | os.PathLike, executor: Executor = Executor()) -> dict[str, np.ndarray]:
+    """All exemplars, from the chunk cache where present; missing chunks are computed in parallel on ``executor``.
 
     Returns arrays ``index (N,)``, ``target (N, B)``, ``points (N, P, 2)``,
     ``realised (N, B)``, ``fit_rms (N,)``, ``pcf (N, m)``, ``features (N, D)``,
@@ -117,36 +117,40 @@ def build_corpus(config: CorpusConfig, cache_dir: str | os.PathLike, workers: in
     """
     folder = Path(cache_dir) / f"corpus-{config.key()}"
     chunks = [list(range(start, min(start + config.chunk, config.exemplars))) for start in range(0, config.exemplars, config.chunk)]
-    return cached_chunks(folder, asdict(config), functools.partial(_make_chunk, config), chunks, workers, "corpus")
+    return cached_chunks(folder, asdict(config), functools.partial(_make_chunk, config), chunks, executor, "corpus")
+
+
+def _indexed(make_chunk: Callable[[list], dict[str, np.ndarray]], numbered: tuple[int, list]) -> tuple[int, dict[str, np.ndarray]]:
+    """(chunk number, ``make_chunk(items)``) of a numbered chunk (runs on a worker)."""
+    number, items = numbered
+    return number, make_chunk(items)
 
 
 def cached_chunks(folder: Path, description: dict, make_chunk: Callable[[list], dict[str, np.ndarray]], chunks: list[list],
-                  workers: int, label: str) -> dict[str, np.ndarray]:
+                  executor: Executor, label: str) -> dict[str, np.ndarray]:
     """Concatenated results of ``make_chunk(items)`` over ``chunks``, each chunk cached as ``folder/chunk-NNNN.npz``.
 
-    Missing chunks are computed in ``workers`` spawned processes (``make_chunk``
-    must be picklable) and written atomically, so an interrupted run resumes.
+    Missing chunks are computed on ``executor`` (:mod:`data_gen.executor`; locally in spawned processes even for
+    one worker; ``make_chunk`` must be picklable) and written atomically by this process as they come back, so an
+    interrupted run resumes. A chunk lost with its Dask workers stops the run (:class:`PatternshopError`).
     ``description`` is written to ``folder/config.json``. The result also holds
     ``computed_now``: how many items this call computed rather than read.
     """
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "config.json").write_text(json.dumps(description, indent=2, default=str))
     paths = [folder / f"chunk-{number:04d}.npz" for number in range(len(chunks))]
-    missing = [(path, items) for path, items in zip(paths, chunks) if not path.exists()]
+    missing = [(number, items) for number, items in enumerate(chunks) if not paths[number].exists()]
     total = sum(len(items) for items in chunks)
     done = total - sum(len(items) for _, items in missing)
     with tqdm(total=total, initial=done, desc=label, unit="exemplar", smoothing=0.05) as progress:
-        if missing:
-            context = multiprocessing.get_context("spawn")  # no forked torch/BLAS thread state
-            with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=context) as pool:
-                futures = {pool.submit(make_chunk, items): (path, len(items)) for path, items in missing}
-                for future in as_completed(futures):
-                    result = future.result()
-                    path, count = futures[future]
-                    with atomic_path(path) as tmp:
-                        with open(tmp, "wb") as handle:
-                            np.savez(handle, **result)
-                    progress.update(count)
+        for outcome in executor.map_unordered(functools.partial(_indexed, make_chunk), missing, in_process=False):
+            if isinstance(outcome, Lost):
+                raise PatternshopError(f"{label} chunk {outcome.task[0]} lost with its workers: {outcome.error}")
+            number, result = outcome
+            with atomic_path(paths[number]) as tmp:
+                with open(tmp, "wb") as handle:
+                    np.savez(handle, **result)
+            progress.update(len(chunks[number]))
     parts = [dict(np.load(path)) for path in paths]
     corpus = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
     corpus["computed_now"] = np.int64(total - done)

@@ -3,7 +3,7 @@
 The random GMM spectra of :mod:`data_gen.corpus` rarely produce the patterns
 users meet at the ends of the gamut: nothing there is more regular than a weak
 blue noise, and few exemplars are strongly clustered. This module adds, from
-the perfect lattice to large clusters (palette v2, issue 13):
+the perfect lattice to large clusters:
 
 ====================  =====================================================  =========
 family                parameter swept (generator in :mod:`synthesis.generators`)  values
@@ -26,9 +26,9 @@ its PCF, radial spectrum and perceptual features are the means over
 (realisation r of exemplar i uses ``default_rng([seed, FAMILY_STREAM, i, r])``);
 its stored points are the first realisation. A clustered pattern of 1,024 points
 has only 30-250 clusters, so one realisation's Gram features scatter as far as
-the features of neighbouring settings: exemplars of single draws put two seeds
-of one Matérn setting 60 ab units apart in palette v2's first layout, and a
-Thomas pattern decoded anywhere between them. Results are cached in chunks
+the features of neighbouring settings (in a layout built from single draws,
+two seeds of one Matérn setting landed 60 ab units apart, and a Thomas pattern
+decoded anywhere between them). Results are cached in chunks
 (resumable, independent of chunking and workers). The exemplar's "target"
 spectrum is its measured mean radial spectrum.
 """
@@ -43,6 +43,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from data_gen.executor import Executor
 
 FAMILY_STREAM = 13  # keeps the families' random streams apart from the GMM exemplars'
 FORMAT = 2  # chunk contents; bump to invalidate cached families (2: means over REALISATIONS)
@@ -119,9 +121,9 @@ def _make_chunk(points: int, seed: int, extractor: tuple, indexed: list[tuple[in
     return {name: np.asarray(values) for name, values in out.items()}
 
 
-def build_families(points: int, seed: int, extractor: tuple, cache_dir: str | Path, workers: int = 1,
+def build_families(points: int, seed: int, extractor: tuple, cache_dir: str | Path, executor: Executor = Executor(workers=1),
                    chunk: int = 25, stride: int = 1) -> dict[str, np.ndarray]:
-    """The family exemplars (every ``stride``-th of :func:`family_exemplars`): arrays ``index``,
+    """The family exemplars (every ``stride``-th of :func:`family_exemplars`, computed on ``executor``): arrays ``index``,
     ``points (F, P, 2)``, ``target (F, 64)``, ``pcf (F, m)``, ``features (F, D)``, ``family (F,)`` and
     ``label (F,)`` strings, and ``computed_now``."""
     from data_gen.corpus import cached_chunks
@@ -133,7 +135,7 @@ def build_families(points: int, seed: int, extractor: tuple, cache_dir: str | Pa
     indexed = list(enumerate(exemplars))
     chunks = [indexed[start : start + chunk] for start in range(0, len(indexed), chunk)]
     result = cached_chunks(Path(cache_dir) / f"families-{key}", description,
-                           functools.partial(_make_chunk, points, seed, extractor), chunks, workers, "families")
+                           functools.partial(_make_chunk, points, seed, extractor), chunks, executor, "families")
     result["family"] = np.array([exemplar.family for exemplar in exemplars])
     result["label"] = np.array([exemplar.label() for exemplar in exemplars])
     return result

@@ -14,25 +14,31 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
 * Sharded for clusters: ``shard=i num_shards=N`` makes the shard files whose
   number is i modulo N; every machine writes into the same folder (or copy
   the files together), and each run rebuilds the manifest from the shards present.
+* On a Dask cluster: ``executor=dask scheduler=tcp://host:8786`` (no address:
+  a LocalCluster of ``workers`` processes) sends the items to its workers
+  (:mod:`data_gen.executor`), which write their parts into ``out_dir`` (a
+  folder they all see at the same path); this process merges the shards. An
+  item whose worker died twice is recorded as skipped with Dask's reason.
 * Deterministic: item i uses the random stream ``(seed, i)``, whatever the
   number of workers or shards.
-* Other methods (issue 14): with ``other_methods.share`` > 0, that share of
+* Other methods: with ``other_methods.share`` > 0, that share of
   the items takes its points from another stippler or reference process
   (:mod:`data_gen.stipplers`: density-proportional Poisson, weighted Lloyd,
   variable-radius Poisson-disk, warped jitter, Thomas clusters, drawn by
   ``other_methods.methods`` weights) applied to the map's density, and its
   a, b become the method's preset colour (:data:`data_gen.stipplers.LABELS`)
   of the pairs' palette, so the network does not learn the synthesiser's
-  fingerprint. At share 0 (the default) items and config keys are as before.
-* Light and empty content (issue 14): with ``sparse.share`` > 0, that share of
+  fingerprint. At share 0 (the default) the items and the config key are those
+  of a pair folder made without this option.
+* Light and empty content: with ``sparse.share`` > 0, that share of
   the maps has its density multiplied by a factor drawn log-uniformly in
   ``sparse.scale`` and up to ``sparse.holes`` empty discs cut out of it; with
   ``sparse.empty_share`` > 0, that share of the items is empty (no points, a
-  white map). Both at 0 (the default): items and config keys as before.
-* Dark content (issue 14): with ``dense.share`` > 0, that share of the other
+  white map). Both at 0 (the default): items and config key unchanged.
+* Dark content: with ``dense.share`` > 0, that share of the other
   maps is darkened towards full ink, ``1 - density`` multiplied by a factor
   drawn log-uniformly in ``dense.scale``, so that nearly full ink, rare in the
-  procedural pictures, is seen. At 0 (the default) items and keys as before.
+  procedural pictures, is seen. At 0 (the default): items and config key unchanged.
 
 Settings: ``conf/pairs.yaml`` and ``conf/dataset/*.yaml``; any value can be
 overridden (``workers=2 synthesis.points_per_ink=50000 out_dir=/data/pairs``).
@@ -40,19 +46,18 @@ overridden (``workers=2 synthesis.points_per_ink=50000 out_dir=/data/pairs``).
 
 from __future__ import annotations
 
+import functools
 import hashlib
-import itertools
 import json
-import multiprocessing
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from data_gen.executor import Executor, Lost
 from data_gen.makers import MapMaker, SourceError, build_maker
 from data_gen.provenance import file_sha256, git_commit, machine, run_config_command, utc_now
 from data_gen.shards import PARTS, Pairs, map_to_target, part_path, read_manifest, read_shard, shard_path, target_to_map, write_manifest
@@ -256,12 +261,16 @@ def _run_item(out_dir: str, item: int) -> tuple[int, str | None]:
     try:
         pair = make_pair(settings, maker, item)
     except SourceError as exc:  # bad source: recorded, never fatal
-        reason = str(exc)
-        atomic_write_text(part_path(Path(out_dir), item, skipped=True),
-                          json.dumps({"item": item, "source": maker.source(item), "reason": reason}) + "\n")
-        return item, reason
+        return item, skip_item(Path(out_dir), maker, item, str(exc))
     pair.write(part_path(Path(out_dir), item), compressed=False)
     return item, None
+
+
+def skip_item(out_dir: Path, maker: MapMaker, item: int, reason: str) -> str:
+    """Record item ``item`` as skipped for ``reason`` (its part file ``item-N.skip.json``); returns the reason."""
+    atomic_write_text(part_path(out_dir, item, skipped=True),
+                      json.dumps({"item": item, "source": maker.source(item), "reason": reason}) + "\n")
+    return reason
 
 
 # --- resumption and merging ----------------------------------------------------
@@ -358,7 +367,7 @@ def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
     for c, count in remaining.items():
         if count == 0:  # only parts left from an interrupted run
             merge_chunk(out_dir, c, chunk_items(c, settings.chunk, total))
-    workers = max(1, int(cfg.workers))
+    executor = Executor.from_config(cfg)
     with tqdm(total=len(todo), desc=f"pairs ({maker.name}, shard {shard}/{num_shards})", unit="pair", smoothing=0.1) as bar:
         def finished(item: int, reason: str | None) -> None:
             if reason:
@@ -370,35 +379,24 @@ def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
             if remaining[c] == 0:
                 merge_chunk(out_dir, c, chunk_items(c, settings.chunk, total))
 
-        if workers == 1 or len(todo) <= 1:
-            import torch
+        import torch
 
-            threads = torch.get_num_threads()
-            _start_worker(settings, int(cfg.threads_per_worker))
-            try:
-                for item in todo:
-                    finished(*_run_item(str(out_dir), item))
-            finally:  # the caller (e.g. train.py) keeps its own thread count
-                torch.set_num_threads(threads)
-        elif todo:
-            context = multiprocessing.get_context("spawn")  # no forked torch/BLAS thread state
-            with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
-                                     initargs=(settings, int(cfg.threads_per_worker))) as pool:
-                queue = iter(todo)
-                running = {pool.submit(_run_item, str(out_dir), item) for item in itertools.islice(queue, 2 * workers)}
-                while running:  # a bounded queue, so an interrupt leaves little half-done work
-                    complete, running = wait(running, return_when=FIRST_COMPLETED)
-                    for future in complete:
-                        finished(*future.result())
-                        for item in queue:
-                            running.add(pool.submit(_run_item, str(out_dir), item))
-                            break
+        threads = torch.get_num_threads()
+        try:  # one worker works in this process; remote workers need the folder's absolute path
+            for outcome in executor.map_unordered(functools.partial(_run_item, str(out_dir.absolute())), todo,
+                                                  _start_worker, (settings, int(cfg.threads_per_worker))):
+                if isinstance(outcome, Lost):  # its Dask workers died on every try
+                    outcome = outcome.task, skip_item(out_dir, maker, outcome.task, f"worker lost: {outcome.error}")
+                finished(*outcome)
+        finally:  # the caller (e.g. train.py) keeps its own thread count
+            torch.set_num_threads(threads)
     seconds = time.perf_counter() - start
     made = len(todo) - len(skipped_now)
     runs = (existing or {}).get("runs", [])
     if todo:  # the history of runs that made pairs here: how long the folder took to make
         runs.append({"started": header["updated"], "shard": f"{shard}/{num_shards}", "made": made, "skipped": len(skipped_now),
-                     "seconds": round(seconds, 1), "workers": workers, "machine": header["machine"]})
+                     "seconds": round(seconds, 1), "workers": executor.workers, "executor": executor.describe(),
+                     "machine": header["machine"]})
     header["runs"] = runs
     manifest = write_manifest(out_dir, header)
     return {"out_dir": str(out_dir), "dataset": maker.name, "shard": f"{shard}/{num_shards}", "made_now": made,

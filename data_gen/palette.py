@@ -1,14 +1,19 @@
 """Build the correlation palette: ``python -m data_gen.palette [key=value ...]``.
 
-Stages (SPEC §2.1, paper §4, palette v2 of issue 13): corpus (random spectra
-realised as points, minus those whose fit stacked points; plus the parametric
-families of :mod:`data_gen.families`, from the perfect lattice to large
-clusters; PCFs and perceptual features; cached, resumable, parallel) -> L1
-dissimilarities -> metric MDS -> orientation (white noise at a = b = 0, blue
-noise on a blue hue, clusters on red, green noise on green; one scale, an
-optional hue warp chosen by the exemplars' hue spread) -> IDW look-up table ->
-PCA-reduced features for decoding -> presets -> quality metrics. Writes the asset (``output``) and a provenance record beside it
-(same name, ``.json``). Settings: ``conf/palette.yaml``; tiny variant
+Stages (SPEC §2.1, paper §4): corpus (random spectra realised as points,
+minus those whose fit stacked points; plus the parametric families of
+:mod:`data_gen.families`, from the perfect lattice to large clusters; PCFs and
+perceptual features; cached, resumable, parallel) -> L1 dissimilarities of the
+features (log-compressed, ``embedding.compression``) -> metric MDS ->
+PCA-reduced features for decoding -> presets (each takes over its perceptually
+nearest exemplar) -> orientation (white noise at a = b = 0, blue noise on a
+blue hue, clusters on red, green noise on green, the pinned regular exemplars
+on blue hues; one scale, and the least hue warp of ``embedding.warps`` that
+leaves no 60-degree hue wedge with more than ``max_wedge_share`` of the
+exemplars) -> PCF table (:func:`data_gen.palette_table.with_preset_exemplars`:
+PCFs re-measured, presets realised exactly, 256 x 256 IDW look-up table) ->
+quality metrics. Writes the asset (``output``) and a provenance record beside
+it (same name, ``.json``). Settings: ``conf/palette.yaml``; tiny variant
 ``--config-name palette_small``.
 """
 
@@ -23,6 +28,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.corpus import CorpusConfig, SpectrumRanges, build_corpus
+from data_gen.executor import Executor
 from data_gen.families import build_families
 from data_gen.provenance import git_commit, machine, run_config_command, utc_now, versions
 from data_gen.embedding import compressed, l1_distances, mds_layout, orient, stress1, trustworthiness
@@ -61,7 +67,8 @@ def merged_corpus(cfg: DictConfig, config: CorpusConfig) -> tuple[dict[str, np.n
     the family's name), ``label`` (``gmm#INDEX`` or :meth:`data_gen.families.FamilyExemplar.label`),
     ``gmm_index`` (index in the GMM corpus, -1 for families) and a record.
     """
-    corpus = build_corpus(config, cfg.cache_dir, cfg.workers)
+    executor = Executor.from_config(cfg)
+    corpus = build_corpus(config, cfg.cache_dir, executor)
     stacked = stacked_share(corpus["points"])
     keep = stacked <= cfg.corpus.max_stacked_share
     parts = [{"points": corpus["points"][keep], "target": corpus["target"][keep], "pcf": corpus["pcf"][keep],
@@ -72,7 +79,7 @@ def merged_corpus(cfg: DictConfig, config: CorpusConfig) -> tuple[dict[str, np.n
               "gmm_computed_now": int(corpus["computed_now"]), "gmm_worker_seconds": round(float(corpus["seconds"].sum()), 1),
               "gmm_fit_rms_median": round(float(np.median(corpus["fit_rms"][keep])), 4)}
     if cfg.families.enabled:
-        families = build_families(config.points, cfg.seed, config.extractor, cfg.cache_dir, cfg.workers,
+        families = build_families(config.points, cfg.seed, config.extractor, cfg.cache_dir, executor,
                                   stride=cfg.families.stride)
         parts.append({"points": families["points"], "target": families["target"], "pcf": families["pcf"],
                       "features": families["features"], "family": families["family"], "label": families["label"],

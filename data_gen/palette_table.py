@@ -7,7 +7,7 @@ current estimator (:func:`synthesis.pcf.stationary_pcf`) and its count
 dispersion (:func:`synthesis.pcf.count_dispersion`, the synthesiser's noise model), makes each named
 preset an exemplar of its own generator (points, perceptual code and the
 generator's PCF averaged over several realisations, placed on the 8-bit
-colour grid node nearest to the preset's old colour, so that painting the
+colour grid node nearest to the preset's colour in the input palette, so that painting the
 preset's 8-bit colour asks for exactly that generator's PCF), and recomputes
 the 256 x 256 IDW look-up table (and a 64 x 64 one of the dispersion). The full build (:mod:`data_gen.palette`) uses
 the same functions. A provenance record goes into the asset's ``.json``

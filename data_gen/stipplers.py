@@ -1,4 +1,4 @@
-"""Point patterns made by other methods than the synthesiser, from a density image (issue 14).
+"""Point patterns made by other methods than the synthesiser, from a density image.
 
 The network must not learn the synthesiser's fingerprint: its training pairs
 and its out-of-distribution evaluation also use point sets from other

@@ -10,30 +10,28 @@ caller to report. Outputs are written atomically, named after the input
   each and infers its map as ``infer`` does (:func:`export.runtime.infer_map`:
   scale chosen from the pattern unless given, L sharpened where the points are
   regular and smoothed where its detail is noise, a, b filled where the evidence
-  is thin) and writes a CIELAB TIFF. The network
-  is nearly all the work (about 80 ms of one core per reading of a 20k-point
-  file at the default scale, a 640 x 640 px raster; a file takes three or more:
-  the pattern, the two resamplings of the denoising, light areas' zooms), so N
-  workers on N idle cores go about N times as fast as one.
+  is thin; but one symmetry per reading by default, where ``infer`` averages 8)
+  and writes a CIELAB TIFF. The network is nearly all the work (about 80 ms
+  of one core per reading of a 20k-point file at the default scale, a
+  704 x 704 px raster: 640 px of domain and the mirrored border; a file takes
+  three or more: the pattern, the two resamplings of the denoising, light
+  areas' zooms), so N workers on N idle cores go about N times as fast as one.
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
 
 Workers are spawned processes (no forked ONNX Runtime or numba thread state)
 that ignore Ctrl+C: the parent terminates them at once on any exception, Ctrl+C
 included, and removes the temporary files they leave; ``workers <= 1`` works in
-the calling process.
+the calling process. With ``scheduler`` (a Dask scheduler's address) the files
+go to that cluster's workers instead (:mod:`data_gen.executor`): Ctrl+C cancels
+what has not started, and a file whose worker died twice fails with Dask's reason.
 """
 
 from __future__ import annotations
 
 import functools
-import itertools
 import math
-import multiprocessing
 import os
-import queue
-import signal
-import threading
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -42,7 +40,8 @@ from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
-from synthesis.atomic import remove_stale_temporaries
+from data_gen.executor import DASK, LOCAL, Executor, Lost
+from synthesis.atomic import check_writable, remove_stale_temporaries
 from synthesis.conventions import POINTS_PER_INK
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.points import NPY_SUFFIX, TEXT_SUFFIXES, read_points
@@ -116,14 +115,19 @@ def _stem(source: Path) -> str:
     return source.name[: -len(".L.png")] if is_channel_path(source) else source.stem
 
 
-def _plan(sources: Sequence[PathLike], out_dir: PathLike, suffix: str, overwrite: bool) -> tuple[list[_Job], dict[int, FileResult]]:
-    """Jobs to run, and the results already known (skipped: output exists; failed: two inputs, one output)."""
-    out_dir = Path(out_dir)
+def _plan(sources: Sequence[PathLike], out_dir: PathLike, suffix: str, overwrite: bool,
+          absolute: bool = False) -> tuple[list[_Job], dict[int, FileResult]]:
+    """Jobs to run, and the results already known (skipped: output exists; failed: two inputs, one output).
+
+    ``absolute``: jobs and results name absolute paths (for workers on other machines, whose working folder differs).
+    """
+    out_dir = Path(out_dir).absolute() if absolute else Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs: list[_Job] = []
     known: dict[int, FileResult] = {}
     claimed: dict[Path, Path] = {}
     for index, source in enumerate(map(Path, sources)):
+        source = source.absolute() if absolute else source
         output = out_dir / (_stem(source) + suffix)
         if output in claimed:
             known[index] = FileResult(source, output, FAILED, f"{output} is made from {claimed[output]} already")
@@ -132,52 +136,32 @@ def _plan(sources: Sequence[PathLike], out_dir: PathLike, suffix: str, overwrite
         else:
             jobs.append(_Job(index, source, output))
         claimed.setdefault(output, source)
+    if jobs:
+        check_writable(jobs[0].output)  # an unwritable folder stops the run before any work, not file by file
     return jobs, known
 
 
-def _start_worker(initializer: Callable | None, initargs: tuple) -> None:
-    """Worker start: leave Ctrl+C to the parent (it stops the pool), then the caller's initializer."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # tqdm's default lock is a named multiprocessing semaphore: a terminated worker would leave it to the
-    # resource tracker, which complains on stderr; a worker's progress bars (disabled) need no cross-process lock
-    tqdm.set_lock(threading.RLock())
-    if initializer is not None:
-        initializer(*initargs)
-
-
-def _run(function: Callable, tasks: list, workers: int, window: int, out_dir: Path,
+def _run(function: Callable, tasks: list, executor: Executor, out_dir: Path, lost: Callable[[Lost], object],
          initializer: Callable | None = None, initargs: tuple = ()) -> Iterator:
-    """``function(task)`` for every task, in order of completion: in ``workers`` spawned processes (each started once,
-    with ``initializer(*initargs)``) with at most ``window`` tasks pending, or in this process when workers <= 1.
+    """``function(task)`` for every task through ``executor`` (:mod:`data_gen.executor`), in order of completion;
+    a task lost with its Dask workers comes back as ``lost(Lost)``.
 
-    An exception here (Ctrl+C included) terminates the workers at once; the temporary files of files they were
-    writing are removed from ``out_dir``.
+    An exception here (Ctrl+C included) stops the workers (local: terminated at once; Dask: futures cancelled);
+    the temporary files that terminated local workers leave are removed from ``out_dir``.
     """
-    workers = min(workers, len(tasks))
-    if workers <= 1:
-        if initializer is not None:
-            initializer(*initargs)
-        yield from map(function, tasks)
-        return
-    done: queue.SimpleQueue = queue.SimpleQueue()
-    pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_start_worker, initargs=(initializer, initargs))
     try:
-        pending = 0
-        for task in itertools.chain(tasks, [None] * window):
-            if task is not None:
-                pool.apply_async(function, (task,), callback=done.put, error_callback=done.put)
-                pending += 1
-            while pending and (pending >= window or task is None):
-                result = done.get()
-                pending -= 1
-                if isinstance(result, BaseException):
-                    raise result
-                yield result
-        pool.close()
+        for result in executor.map_unordered(function, tasks, initializer, initargs):
+            yield lost(result) if isinstance(result, Lost) else result
     finally:
-        pool.terminate()
-        pool.join()
-        remove_stale_temporaries(out_dir)
+        if executor.kind == LOCAL:  # remote workers may still be writing theirs (atomically)
+            remove_stale_temporaries(out_dir)
+
+
+def _executor(workers: int, scheduler: str | None) -> Executor:
+    """``scheduler``: a Dask scheduler's address (``tcp://host:8786``): the files are converted on its workers, which
+    must read the inputs and write ``out_dir`` at the same absolute paths (a shared file system); None (default):
+    ``workers`` local processes (:mod:`data_gen.executor`)."""
+    return Executor(DASK, workers, scheduler) if scheduler else Executor(LOCAL, workers)
 
 
 def _check_share(job: _Job, needed: float, work: str, share: float) -> None:
@@ -191,7 +175,8 @@ def _check_share(job: _Job, needed: float, work: str, share: float) -> None:
 _WORKER_MODEL: OnnxModel | None = None  # the network of a convert_points worker process, loaded once
 
 
-def _load_model(path: Path, threads: int) -> None:
+def _load_model(path: Path | None, threads: int) -> None:
+    """Worker start: load the network (``path`` None: the shipped model) with ``threads`` ONNX Runtime threads."""
     global _WORKER_MODEL
     from export.runtime import OnnxModel
 
@@ -246,7 +231,7 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
 def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxModel, batch_size: int = 8,
                    workers: int = 2, bits: int = 16, overwrite: bool = False, progress: bool = False,
                    points_per_ink: float | None = None, memory_limit: float = math.inf, symmetries: int = 1,
-                   denoise: bool = True) -> list[FileResult]:
+                   denoise: bool = True, scheduler: str | None = None) -> list[FileResult]:
     """Infer a map for each point file into ``out_dir/NAME.tif`` (``bits``-bit CIELAB); one result per source, in order.
 
     Args:
@@ -261,19 +246,28 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
             throughput, 8 for ``infer``'s reading at 8 times the network time.
         denoise: smooth L where its detail is noise, as ``infer`` does (two more readings per file, about
             twice the time); False keeps the detail.
+        scheduler: see :func:`_executor`.
     """
     if batch_size < 1 or bits not in (8, 16):
         raise PatternshopError(f"batch size must be >= 1 and bits 8 or 16, got {batch_size} and {bits}")
-    jobs, results = _plan(sources, out_dir, ".tif", overwrite)
+    jobs, results = _plan(sources, out_dir, ".tif", overwrite, absolute=scheduler is not None)
     processes = max(1, min(workers, math.ceil(len(jobs) / batch_size)))
     settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes, symmetries, denoise)
     chunks = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
-    if processes <= 1:
+    executor = _executor(processes, scheduler)
+    if processes <= 1 and executor.kind == LOCAL:
         convert, initializer, initargs = functools.partial(_convert_chunk, settings, model=model), None, ()
-    else:
-        convert, initializer, initargs = functools.partial(_convert_chunk, settings), _load_model, (model.path, model.threads)
+    else:  # the shipped model by name: a remote worker finds it in its own installation
+        from export.runtime import DEFAULT_MODEL
+
+        model_file = None if model.path == DEFAULT_MODEL else model.path
+        convert, initializer, initargs = functools.partial(_convert_chunk, settings), _load_model, (model_file, model.threads)
+
+    def lost(chunk: Lost) -> list[tuple[int, FileResult]]:
+        return [(job.index, FileResult(job.source, job.output, FAILED, chunk.error)) for job in chunk.task]
+
     with tqdm(total=len(sources), initial=len(results), desc="convert", unit="file", disable=not progress) as bar:
-        for chunk_results in _run(convert, chunks, processes, 2 * processes, Path(out_dir), initializer, initargs):
+        for chunk_results in _run(convert, chunks, executor, Path(out_dir), lost, initializer, initargs):
             results.update(chunk_results)
             bar.update(len(chunk_results))
     return [results[i] for i in range(len(sources))]
@@ -309,7 +303,7 @@ def _resynthesize(settings: SynthesisSettings, threads: int, memory_limit: float
 
 def resynthesize_maps(sources: Sequence[PathLike], out_dir: PathLike, settings: SynthesisSettings = SynthesisSettings(),
                       workers: int = 2, threads: int = 1, overwrite: bool = False, progress: bool = False,
-                      memory_limit: float = math.inf) -> list[FileResult]:
+                      memory_limit: float = math.inf, scheduler: str | None = None) -> list[FileResult]:
     """Synthesise points for each map into ``out_dir/NAME.txt``; one result per source, in order.
 
     Args:
@@ -317,14 +311,19 @@ def resynthesize_maps(sources: Sequence[PathLike], out_dir: PathLike, settings: 
         workers: synthesising processes (1: this process), each with ``threads`` threads.
         overwrite: replace existing outputs (default: skip their inputs).
         memory_limit: bytes all workers together may use; a map whose estimate exceeds its worker's share fails.
+        scheduler: see :func:`_executor`.
     """
     if threads < 1:
         raise PatternshopError(f"threads must be at least 1, got {threads}")
-    jobs, results = _plan(sources, out_dir, ".txt", overwrite)
+    jobs, results = _plan(sources, out_dir, ".txt", overwrite, absolute=scheduler is not None)
     processes = max(1, min(workers, len(jobs)))
     synthesise = functools.partial(_resynthesize, settings, threads, memory_limit / processes)
+
+    def lost(job: Lost) -> tuple[int, FileResult]:
+        return job.task.index, FileResult(job.task.source, job.task.output, FAILED, job.error)
+
     with tqdm(total=len(sources), initial=len(results), desc="resynthesize", unit="map", disable=not progress) as bar:
-        for index, result in _run(synthesise, jobs, processes, 2 * processes, Path(out_dir)):
+        for index, result in _run(synthesise, jobs, _executor(processes, scheduler), Path(out_dir), lost):
             results[index] = result
             bar.update()
     return [results[i] for i in range(len(sources))]

@@ -2,9 +2,9 @@
 
 The network reads density at a fixed bandwidth of a few point spacings, so a
 fine-detailed stippling comes out softer than a kernel density estimate at one
-pixel (issue 14: on Floyd-Steinberg and Lloyd stipplings a KDE at 1-1.5 px beat
-it), while a smooth picture's random stippling comes out grainy (a KDE at 8-16
-px beat it there). How fine a count can be trusted depends on the pattern's
+pixel (on Floyd-Steinberg and Lloyd stipplings a KDE at 1-1.5 px beats the
+network alone), while a smooth picture's random stippling comes out grainy (a
+KDE at 8-16 px beats it there). How fine a count can be trusted depends on the pattern's
 correlation and on how many points there are: the counts of a regular
 (blue-noise, Lloyd, dithered) pattern vary far less than Poisson's, so a KDE
 about one point spacing wide is nearly noise-free there, while a Poisson
@@ -33,24 +33,25 @@ pattern's is mostly noise.
    50,000 points; measured, not fitted to the evaluation's pictures). The
    weight rises from 0 at :data:`POISSON_RATIO` to 1 at :data:`REGULAR_RATIO`:
    the filtered KDE where the points are regular, the network's density where
-   they are Poisson or clustered (a cluster is not a dark spot: issue 14's
-   confusion of clustering with density).
+   they are Poisson or clustered (a cluster is not a dark spot: clustering
+   must not read as density).
 
 :func:`denoise_density` smooths what cannot be trusted. It needs a sample of
 the noise the density carries; :func:`export.runtime.bootstrap_noise` makes one
 by reading two Poisson resamplings of the map (:func:`poisson_resample`, a
-parametric bootstrap: on stationary Poisson patterns the network's own detail
-has 0.86-0.99 of that sample's energy at 1-16 px). Level by level (Gaussians of
+parametric bootstrap: on stationary Poisson patterns at density 0.2 and 0.5
+the network's own detail has 0.88-1.05 of that sample's energy at 1-16 px,
+``bench/bench_denoise.py``). Level by level (Gaussians of
 1, 2, 4 ... px, :func:`smoothing_levels`), a pixel takes the next smoothing
 while the detail it removes is within ``1 +`` :data:`NOISE_TOLERANCE` of the
 energy the same smoothing removes from the noise sample, in windows of
-:data:`NOISE_WINDOW` times the level: a flat area is smoothed wide, an edge or
+:data:`NOISE_WINDOW` times the level (at least :data:`MIN_NOISE_WINDOW_PX`): a flat area is smoothed wide, an edge or
 a texture the noise cannot explain keeps its detail. ``infer``
 (:func:`export.runtime.refine_density`) denoises the network's density with
 the Poisson sample, sharpens it, and denoises the sharpened part again with
 :data:`REGULAR_NOISE_SHARE` of the sample's energy: the median ratio of the
 sharpened L's detail energy on stationary Poisson-disk and Lloyd patterns
-(density 0.2 and 0.5, 1-16 px) to the Poisson sample's (0.08-0.94).
+(density 0.2 and 0.5, 1-16 px) to the Poisson sample's (0.32; range 0.08-0.98).
 
 The result is water-filled back to the pattern's ink
 (:func:`export.evidence.calibrate_density`) by the caller. The kernel width,

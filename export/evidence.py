@@ -16,8 +16,8 @@ Two measurements on the points alone, before and after the network:
    above the noise of a full-ink Poisson pattern (quantile 1.07-1.09).
 2. **Evidence for correlation** (:func:`local_evidence`). Correlation is a
    property of neighbourhoods: where a neighbourhood holds few points, no
-   estimator sees it (issue 14: below density 0.05-0.1 the shipped network
-   gives the same colour to every process). The evidence at a map pixel is the
+   estimator sees it (below density 0.05-0.1 the network alone gives the
+   same colour to every process). The evidence at a map pixel is the
    number of points within :data:`EVIDENCE_RADIUS_PX` pixels of the network's
    raster (a Gaussian window of the same area); it is *thin* below
    :data:`MIN_EVIDENCE_POINTS` (at the default model's 8,000 points per ink on
@@ -29,8 +29,8 @@ Two measurements on the points alone, before and after the network:
    neighbours; L is never changed. A pixel without ink (density below
    :data:`INKED_DENSITY`) counts as unobserved too, whatever its window holds:
    its a, b only echoes the points around it (next to a half-empty pattern's
-   edge, the zoomed reading saw that edge as a cluster's border and painted the
-   empty half red; it now takes the inked half's colour).
+   edge, a zoomed reading sees that edge as a cluster's border and would paint
+   the empty half red; filled, it takes the inked half's colour).
 3. **Zoomed correlation** (:func:`correlation_zoom`). Correlation is a
    property of the pattern in units of its own spacing, density is not: a
    light area read as if the pattern held ``f`` times fewer points per ink
@@ -44,17 +44,17 @@ Two measurements on the points alone, before and after the network:
    mixes in a reading at under half or over twice :data:`WORK_DENSITY`: the
    default network names all five stationary processes right at apparent
    densities 0.3-1.2 (measured with seed 7, not the evaluation's seed), while
-   jitter read below 0.3 drifts towards step (issue 14; zooms 1, 4, 16 around
-   0.4 mixed in readings at 0.1). A pixel is zoomed as the densest pixel
+   jitter read below 0.3 drifts towards step (zooms 1, 4, 16 around 0.4 would
+   mix in readings at 0.1). A pixel is zoomed as the densest pixel
    within :data:`ZOOM_NEIGHBOURHOOD_PX` of it, so the light side of a density
    edge is read at the dark side's scale.
 4. **Ink the points hold** (:func:`calibrate_density`). The pattern holds
    ``n`` points, so the map's mean density must be ``n / points_per_ink``
    (``synthesize``'s count): one factor over the network's ink restores it,
    water-filled under full ink. No points, no ink: the network cannot invent
-   any. (A cap of the ink where a pixel's disc holds no point was tried and
-   dropped: a clustered pattern's voids read as light areas, the confusion of
-   clustering with density that issue 14 reports.)
+   any. (The ink is not capped where a pixel's disc holds no point: a
+   clustered pattern's voids would then read as light areas, confusing
+   clustering with density.)
 """
 
 from __future__ import annotations

@@ -18,9 +18,9 @@
    within :data:`BORDER_PX` raster pixels, on a square canvas of side
    ``ceil((max(w, h) R + 2 BORDER_PX) / 64) * 64`` (the U-Net needs multiples
    of 64): the domain's ``w R`` x ``h R`` pixels start at ``(BORDER_PX,
-   BORDER_PX)``, the rest is empty. Without the mirror, the network saw the
-   pattern end at the domain's border and darkened a rim there (it learnt the
-   synthesiser's thinner borders).
+   BORDER_PX)``, the rest is empty. Without the mirror the network would see
+   the pattern end at the domain's border and darken a rim there (it learnt
+   the synthesiser's thinner borders).
 3. **Run and crop back.** The network is fully convolutional; :func:`infer_map`
    averages its outputs over the 8 symmetries of the square (each flipped or
    transposed raster's output turned back; :func:`points_to_map`: one run);
@@ -361,7 +361,14 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
         denoise: with ``calibrate``, smooth L where its detail is what the pattern's own noise explains
             (:func:`refine_density`); a, b are read as without it.
         symmetries: readings averaged over this many symmetries of the square (:func:`predict_symmetric`).
+
+    Raises:
+        PatternshopError: a degenerate pattern, most points on top of each other
+            (:func:`synthesis.analysis.check_not_degenerate`, as ``analyze`` refuses it).
     """
+    from synthesis.analysis import check_not_degenerate
+
+    check_not_degenerate(points)
     scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
     if not scale.automatic:
         message = saturation_warning(len(points), scale.points_per_ink)

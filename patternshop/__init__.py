@@ -1,5 +1,22 @@
 """Patternshop: edit point patterns as CIELAB images. The ``patternshop`` command lives here."""
 
+from typing import TYPE_CHECKING, Any
+
+from patternshop import api as _api  # light: its names load their modules on first use (PEP 562)
 from synthesis.version import package_version
 
+if TYPE_CHECKING:
+    from patternshop.api import *  # noqa: F403 - the names below, for type checkers and editors
+
 __version__ = package_version()
+__all__ = list(_api.__all__)  # the Python API: see patternshop.api
+
+
+def __getattr__(name: str) -> Any:
+    if name in _api.__all__:
+        return getattr(_api, name)
+    raise AttributeError(f"module 'patternshop' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

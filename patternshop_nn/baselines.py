@@ -7,9 +7,10 @@
   baseline is as strong as it can be).
 * Correlation: the map is cut into ``cells`` x ``cells`` squares; each square's
   points (the square grown until it holds :data:`MIN_WINDOW_POINTS`) are
-  matched to the nearest palette exemplar in perceptual-feature space
-  (:meth:`synthesis.palette.Palette.decode`, as ``patternshop analyze`` does)
-  and the square takes that exemplar's latent.
+  decoded by the palette in perceptual-feature space
+  (:meth:`synthesis.palette.Palette.decode`, as ``patternshop analyze`` does:
+  inverse-distance weighting of the nearest exemplars' latents) and the square
+  takes that latent.
 
 Metrics, on maps in the network's units (L/100 and z, all in [0, 1]):
 ``density_mae`` is the mean |density error| over all pixels; ``latent_mae``

@@ -1,4 +1,4 @@
-"""Evaluation of a points-to-map model: out of distribution (issue 14) or on held-out pairs (issue 6).
+"""Evaluation of a points-to-map model: out of distribution or on held-out pairs.
 
 ``python -m patternshop_nn.evaluate --out eval.json [--quick]`` (the shipped model; ``--model`` for another)
 
@@ -22,7 +22,7 @@ table beside it (``--markdown``) and contact sheets (``--previews``).
    (:mod:`patternshop_nn.baselines`) beside the KDE density (best bandwidth)
    and the palette-decoding correlation baseline on the same pairs, and the
    relative gains.
-4. **Round trip** on ``--roundtrip`` held-out pairs (issue 7): points → infer
+4. **Round trip** on ``--roundtrip`` held-out pairs: points → infer
    → synthesise (same point count) → points, scored against the pair's true
    map: density SSIM (:func:`synthesis.tone.density_fidelity`) and local PCF
    error (mean |edge-aware PCF − target| over points and radii), beside the

@@ -44,8 +44,8 @@ class Pix2PixModule(L.LightningModule):
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
         self.save_hyperparameters()
         self.automatic_optimization = False
-        # upsample's default is the shipped checkpoint's architecture (its hparams predate the option);
-        # conf/model/pix2pix.yaml chooses resize-convolution for new runs.
+        # upsample's default, "transposed", rebuilds checkpoints whose hparams predate the option;
+        # conf/model/pix2pix.yaml (and the shipped model) use resize-convolution ("nearest").
         self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample)
         self.discriminator = PatchDiscriminator(4, disc_channels, disc_layers)
         init_weights(self.generator)

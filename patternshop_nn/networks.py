@@ -5,8 +5,8 @@ Shapes and ranges (B = batch, S = raster size, a multiple of ``2**levels``):
 * generator input: (B, 1, S, S) point raster in [0, 1] (:func:`synthesis.raster.point_raster`);
 * generator output: (B, 3, S, S) in [0, 1]: channel 0 is L/100 (``1 - density``),
   channels 1-2 the latent z of the correlation (``a, b = 255 z - 128``);
-* discriminator input: raster and map concatenated, (B, 4, S, S); output: (B, 1, S/8, S/8)
-  patch logits (3 strided layers, a 70 x 70 receptive field as pix2pix's PatchGAN).
+* discriminator input: raster and map concatenated, (B, 4, S, S); output: (B, 1, S/8 - 2, S/8 - 2)
+  patch logits (30 x 30 at S = 256; 3 strided layers, a 70 x 70 receptive field as pix2pix's PatchGAN).
 
 The generator is a pix2pix U-Net with one encoder and **two decoders**, one
 for density (1 channel) and one for correlation (2 channels), each with skip
@@ -19,13 +19,15 @@ Up-sampling (``upsample``):
 * ``"transposed"``: pix2pix's 4x4 stride-2 transposed convolutions. Each output
   pixel gets other kernel taps by its parity, so every level can print a
   2-pixel checkerboard and the stack of them a lattice of period ``2**levels``
-  (64 px): the shipped model (patternshop-procedural-v1) shows it as marks on
-  a 64-px grid in empty areas (issue 14).
+  (64 px), seen as marks on a 64-px grid in empty areas (a model trained with
+  it, patternshop-procedural-v1, locked 94 % of its L and a,b variance to that
+  grid's phase; ``patternshop_nn/assets/MODEL_CARD.md``).
 * ``"nearest"`` or ``"bilinear"``: resize-convolution (Odena, Dumoulin and Olah,
   "Deconvolution and checkerboard artifacts", Distill 2016): up-sample by 2,
   then a 3x3 convolution. Every output pixel sees the same kernel, so a
-  constant input gives a constant output away from the borders. The default of
-  new training runs (``conf/model/pix2pix.yaml``).
+  constant input gives a constant output away from the borders. ``"nearest"``
+  is the configured default (``conf/model/pix2pix.yaml``) and the shipped
+  model's choice.
 
 For inference, :func:`fuse_upsampling` rewrites every nearest up-sampling and
 its 3x3 convolution as :class:`NearestUpConv`, the same function computed at
@@ -92,8 +94,9 @@ class DualBranchUNet(nn.Module):
         levels: down-/up-sampling levels (paper: 6); the raster side must be a multiple of ``2**levels``.
         base_channels: channels after the first level; doubled per level up to ``max_channels``.
         dropout: dropout in the three deepest decoder levels (pix2pix's noise), 0 to disable.
-        upsample: the decoders' up-sampling, one of :data:`UPSAMPLING` (see module docstring); "transposed"
-            builds the shipped model's architecture, whose recorded config does not name it.
+        upsample: the decoders' up-sampling, one of :data:`UPSAMPLING` (see module docstring). The
+            argument's default, "transposed", rebuilds checkpoints whose recorded hyperparameters
+            do not name it; the config (and the shipped model) use "nearest".
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
@@ -176,7 +179,7 @@ def fuse_upsampling(generator: nn.Module) -> nn.Module:
 
 
 class PatchDiscriminator(nn.Module):
-    """Conditional PatchGAN: (B, in_channels, S, S) -> (B, 1, S/8, S/8) real/fake logits per patch.
+    """Conditional PatchGAN: (B, in_channels, S, S) -> (B, 1, S/8 - 2, S/8 - 2) real/fake logits per patch (layers=3).
 
     Three strided 4x4 convolutions (``base_channels`` doubling per layer), one
     stride-1 convolution and a 1-channel output convolution (pix2pix's

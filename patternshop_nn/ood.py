@@ -1,4 +1,4 @@
-"""Out-of-distribution evaluation of a points-to-map model (issue 14): the figures of its targets.
+"""Out-of-distribution evaluation of a points-to-map model: the figures of its targets.
 
 Every input is made here, by other methods than the synthesiser the model was
 trained on, at the synthesiser's scale (50,000 points per fully dark unit
@@ -321,7 +321,7 @@ def contact_sheet(rows: list[tuple[str, list[np.ndarray]]], path: Path, tile: in
 def evaluate_ood(model_path: Path, palette: Palette, quick: bool, seed: int, preview_dir: Path | None, fill: bool = True) -> dict:
     """All sections (reduced with ``quick``: :data:`QUICK`); contact sheets into ``preview_dir`` when given.
 
-    ``fill``: fill a, b where the evidence is thin, as ``infer`` does (False: the network's a, b, as before issue 14).
+    ``fill``: fill a, b where the evidence is thin, as ``infer`` does (False: the network's a, b as they came).
     """
     model = OnnxModel(model_path, threads=1)
     pictures = QUICK["pictures"] if quick else PICTURES

@@ -4,32 +4,50 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 
 import numpy as np
 
+from synthesis.cells import CellGrid
 from synthesis.errors import PatternshopError
 from synthesis.palette import OUTSIDE_CORPUS, Palette, hue_chroma
 from synthesis.pcf import pcf_radii, r_max, stationary_pcf
 from synthesis.points import PointSet
 
 MAX_SPECTRUM_BINS = 1024
+SPECTRUM_REACH = 2.5  # the spectrum's bins reach this many times the mean point frequency sqrt(n)
+MAX_SPECTRUM_POINTS = round((MAX_SPECTRUM_BINS / SPECTRUM_REACH) ** 2)  # 167,772: the bins reach that far for so many points
+CHECK_CHUNK = 1 << 18  # points per block of the degeneracy check: progress and Ctrl+C between blocks
+# rough shares of an analysis's time, for its progress bar
+_STAGE_SHARES = {"coincident points": 10.0, "pair correlation": 75.0, "spectrum": 5.0, "palette colour": 10.0}
+
+Progress = Callable[[float], None]  # called with the fraction of a stage done
 
 
 def radial_spectrum(points: PointSet) -> tuple[np.ndarray, np.ndarray]:
-    """Radial power spectrum of the largest centred square window of a pattern.
+    """Radial power spectrum of a centred square window of a pattern.
+
+    The window is the largest centred square, shrunk for patterns of more than
+    :data:`MAX_SPECTRUM_POINTS` points to about that many points' worth of area, so
+    that the (at most :data:`MAX_SPECTRUM_BINS`) bins still reach 2.5 times the
+    mean point frequency. This is sound for the stationary patterns analysed:
+    every window has the same spectrum, and a periodogram's noise per frequency
+    does not fall with more points (each power value is exponentially
+    distributed whatever n); a larger window would only cut the bins off below
+    the point frequency, and cost a transform of all its points.
 
     Returns frequencies (B,) in cycles per window side and power (B,) (1 for
     Poisson; the window is treated as periodic, so the lowest bins see some
-    leakage). B covers 2.5 times the mean point frequency sqrt(n).
+    leakage). B covers 2.5 times the mean point frequency sqrt(n) of the window.
     """
     from synthesis.spectrum import RadialSpectrum
 
     w, h = points.domain
-    side = min(w, h)
+    side = min(w, h, math.sqrt(MAX_SPECTRUM_POINTS * w * h / max(len(points), 1)))
     lo = np.array([(w - side) / 2, (h - side) / 2])
     window = (points.xy - lo) / side
     window = window[np.all((window >= 0) & (window < 1), axis=1)]
-    bins = min(MAX_SPECTRUM_BINS, int(2.5 * math.sqrt(len(window))) + 2)
+    bins = min(MAX_SPECTRUM_BINS, int(SPECTRUM_REACH * math.sqrt(len(window))) + 2)
     power = RadialSpectrum(len(window), bins)(window)
     return np.arange(bins, dtype=np.float64), power
 
@@ -38,31 +56,78 @@ DEGENERATE_SHARE = 0.5  # a pattern with more than this share of (nearly) coinci
 COINCIDENT = 0.05  # in units of r_max: the generators' clustered presets have 4 % of points this close, not 50 %
 
 
-def analyze_points(points: PointSet, palette: Palette) -> dict:
+def coincident_points(points: PointSet, progress: Progress | None = None) -> int:
+    """How many points have another closer than :data:`COINCIDENT` r_max (r_max of the whole pattern and domain).
+
+    Works in blocks of :data:`CHECK_CHUNK` points (``progress(fraction)`` after each), so Ctrl+C is honoured at once.
+    """
+    n = len(points)
+    if n < 2:
+        return 0
+    w, h = points.domain
+    spacing = float(r_max(n, w * h))
+    grid = CellGrid(points.xy, points.domain, spacing)
+    coincident = 0
+    for start in range(0, n, CHECK_CHUNK):
+        stop = min(start + CHECK_CHUNK, n)
+        coincident += int(grid.has_neighbour(points.xy[start:stop], COINCIDENT * spacing, np.arange(start, stop)).sum())
+        if progress is not None:
+            progress(stop / n)
+    return coincident
+
+
+def check_not_degenerate(points: PointSet, progress: Progress | None = None) -> None:
+    """Refuse a degenerate pattern: more than :data:`DEGENERATE_SHARE` of its points within :data:`COINCIDENT`
+    r_max of another (``analyze`` and ``infer`` alike: neither has a correlation to read from it).
+
+    Raises:
+        PatternshopError: naming how many points coincide.
+    """
+    coincident = coincident_points(points, progress)
+    if coincident > DEGENERATE_SHARE * len(points):
+        raise PatternshopError(
+            f"{coincident} of {len(points)} points lie on top of another point (closer than {COINCIDENT} r_max): "
+            "the pattern is degenerate and has no correlation colour to decode"
+        )
+
+
+def analyze_points(points: PointSet, palette: Palette, progress: bool = False) -> dict:
     """PCF, spectrum, decoded colour, its confidence and nearest preset of a stationary pattern (JSON-ready dict).
 
     ``exemplar_distance`` is how far the perceptually nearest palette exemplar
     is, in units of the corpus's own exemplar spacing (:class:`synthesis.palette.Decoded`);
     ``confidence`` names its band, and ``warning`` (present only then) says that
-    the pattern lies outside the corpus, its colour being a guess. A degenerate pattern (more than :data:`DEGENERATE_SHARE` of its points within
-    :data:`COINCIDENT` r_max of another) is an error: any colour decoded from it
-    would be a confident answer to a question it cannot answer.
+    the pattern lies outside the corpus, its colour being a guess. A degenerate
+    pattern is an error (:func:`check_not_degenerate`): any colour decoded from it
+    would be a confident answer to a question it cannot answer. ``progress``:
+    a progress bar on stderr (tqdm). The work goes in blocks of a fraction of a
+    second, so Ctrl+C stops it at once.
     """
-    from scipy.spatial import cKDTree
+    from tqdm import tqdm
 
     w, h = points.domain
-    if len(points) >= 2:
-        distance, _ = cKDTree(points.xy).query(points.xy, k=2)
-        coincident = int(np.sum(distance[:, 1] < COINCIDENT * r_max(len(points), w * h)))
-        if coincident > DEGENERATE_SHARE * len(points):
-            raise PatternshopError(
-                f"{coincident} of {len(points)} points lie on top of another point (closer than {COINCIDENT} r_max): "
-                "the pattern is degenerate and has no correlation colour to decode"
-            )
-    radii = pcf_radii()
-    pcf = stationary_pcf(points.xy, points.domain, periodic=False, radii=radii)
-    frequency, power = radial_spectrum(points)
-    decoded = palette.locate(points.xy, points.domain)
+    with tqdm(total=100.0, desc="analyze", disable=not progress, leave=False,
+              bar_format="{desc}{percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]") as bar:
+        offsets = dict(zip(_STAGE_SHARES, np.cumsum([0.0, *_STAGE_SHARES.values()])))
+
+        def stage(name: str) -> Progress:
+            """Start stage ``name`` (its label, the bar at its start); returns its progress callback."""
+            bar.set_description(f"analyze: {name}")
+
+            def advance(fraction: float) -> None:
+                bar.update(offsets[name] + _STAGE_SHARES[name] * fraction - bar.n)
+
+            advance(0.0)
+            return advance
+
+        check_not_degenerate(points, stage("coincident points"))
+        radii = pcf_radii()
+        pcf = stationary_pcf(points.xy, points.domain, periodic=False, radii=radii, progress=stage("pair correlation"))
+        stage("spectrum")
+        frequency, power = radial_spectrum(points)
+        stage("palette colour")
+        decoded = palette.locate(points.xy, points.domain)
+        bar.update(bar.total - bar.n)
     a, b = decoded.a, decoded.b
     hue, chroma = hue_chroma(a, b)
     warning = {} if decoded.confidence != "outside the corpus" else {"warning": (

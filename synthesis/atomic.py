@@ -22,6 +22,8 @@ import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+from synthesis.errors import PatternshopError
+
 _TEMPORARY_NAME = re.compile(r"^\.(?P<target>.+)\.(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp(\.[^.]*)?$")
 # (temporary, target) renames waiting for the end of the innermost all_or_nothing block; None outside one
 _PENDING_RENAMES: contextvars.ContextVar[list[tuple[Path, Path]] | None] = contextvars.ContextVar("pending_renames", default=None)
@@ -64,6 +66,53 @@ def remove_stale_temporaries(folder: str | os.PathLike, target_name: str | None 
     return removed
 
 
+def _not_writable(target: Path, exc: OSError) -> PatternshopError:
+    """The one-line error for a failed write of ``target``, naming it (never a temporary file)."""
+    return PatternshopError(f"{target}: cannot write into folder {target.parent} ({exc.strerror or exc})")
+
+
+def _temporary_beside(target: Path) -> Path:
+    """Create an empty temporary file for ``target`` in its folder, named as the module docstring says.
+
+    Raises:
+        FileNotFoundError: the folder does not exist.
+        PatternshopError: the folder takes no new file (permissions, a read-only file system, a full disk).
+    """
+    if not target.parent.is_dir():
+        raise FileNotFoundError(f"{target}: folder {target.parent} does not exist")
+    remove_stale_temporaries(target.parent, target.name)
+    try:
+        handle, name = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp" + target.suffix, dir=target.parent)
+    except OSError as exc:
+        raise _not_writable(target, exc) from exc
+    os.close(handle)
+    os.chmod(name, _DEFAULT_MODE)  # mkstemp makes 0600; outputs are ordinary files
+    return Path(name)
+
+
+def _replace(tmp: Path, target: Path) -> None:
+    """Rename a finished temporary file onto its target; an error names the target."""
+    try:
+        os.replace(tmp, target)
+    except OSError as exc:
+        raise _not_writable(target, exc) from exc
+
+
+def check_writable(target: str | os.PathLike) -> Path:
+    """Check, before any work, that ``target`` can be written: its folder exists and takes a new file.
+
+    Probed by creating and removing a temporary file beside it, so whatever the
+    real write would meet (permissions, ACLs, a read-only file system) is met now.
+
+    Raises:
+        FileNotFoundError: the folder does not exist.
+        PatternshopError: the folder takes no new file; the message names ``target``.
+    """
+    path = Path(target)
+    _temporary_beside(path).unlink()
+    return path
+
+
 @contextlib.contextmanager
 def all_or_nothing() -> Iterator[None]:
     """Replace the targets of all atomic writes inside the block together at its end, or none on an exception.
@@ -79,7 +128,7 @@ def all_or_nothing() -> Iterator[None]:
         yield
         while pending:
             tmp, path = pending[0]
-            os.replace(tmp, path)
+            _replace(tmp, path)
             pending.pop(0)
     finally:
         _PENDING_RENAMES.reset(token)
@@ -103,21 +152,21 @@ def atomic_paths(targets: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
     handed_over = False
     try:
         for path in final:
-            if not path.parent.is_dir():
-                raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
-            remove_stale_temporaries(path.parent, path.name)
-            handle, name = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp" + path.suffix, dir=path.parent)
-            os.close(handle)
-            os.chmod(name, _DEFAULT_MODE)  # mkstemp makes 0600; outputs are ordinary files
-            temporary.append(Path(name))
-        yield temporary
+            temporary.append(_temporary_beside(path))
+        try:
+            yield temporary
+        except OSError as exc:  # a writer's error names the temporary file: name the user's target instead
+            targets = {str(tmp): path for tmp, path in zip(temporary, final)}
+            if exc.filename is None or str(exc.filename) not in targets:
+                raise
+            raise _not_writable(targets[str(exc.filename)], exc) from exc
         pending = _PENDING_RENAMES.get()
         if pending is not None:
             pending.extend(zip(temporary, final))
             handed_over = True
         else:
             for tmp, path in zip(temporary, final):
-                os.replace(tmp, path)
+                _replace(tmp, path)
     finally:
         if not handed_over:
             for tmp in temporary:

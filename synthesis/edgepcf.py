@@ -17,20 +17,29 @@ pattern E[g_hat] = 1 everywhere.
 centre's own PCF). One point's neighbourhood holds a handful of pairs per
 radius, so its own PCF varies a lot between neighbourhoods of a true sample;
 forcing every one to the target makes patterns over-regular. Instead the
-pair-count excess ``e(c, j) = S(c, j) - g(c, j) D(c, j)`` is summed over a
-guided window of centres, ``r = A^P e`` with ``A = I + W``,
-``W[w, c] = taper(|x_c - x_w| / (R s(w))) H(z_c, z_w)`` for the window's
-neighbours (radius R = :data:`WINDOW_RADIUS` spacings; P = :data:`WINDOW_PASSES`
-passes widen it), and scored like a chi-square against the Poisson variance of
-the same window, ``V = A^P D``:
+pair-count excess ``e(c, j) = S(c, j) - g(c, j) D(c, j)`` is cumulated over the
+radii, ``E(c, j) = sum_{i <= j} e(c, i)`` (pairs closer than each radius: every
+step out of a hard core pays), and summed over guided windows of centres,
+``r(w, j) = sum_c a_wc E(c, j)`` with ``a_wc = taper(|x_c - x_w| / (R s(w))) H(z_c, z_w)``
+(:func:`window_taper`). Window centres are drawn with the map's intensity,
+independently of the pattern (:class:`WindowSampler`). Each family of
+:data:`WINDOW_SCALES` (local windows, R = 3.3 spacings, one per 8 points;
+regional ones, R = 16, one per 200 points) standardises its sums by their
+Poisson-model standard deviation ``sigma(w, j)`` (:func:`_deviation`, growth
+from :data:`CUMULATIVE_VARIANCE`) and scores them with its dead zone b
+(:func:`dead_zone`; b = 2 local, b = 0 regional, i.e. plain quadratic):
 
-    L = sum_{w, j} r(w, j)^2 / V(w, j) / (n m)
+    L = sum_families weight / (W m) sum_{w, j} max(|r(w, j)| / sigma(w, j) - b, 0)^2
+        + the regional windows' variance compensation (:func:`_variance_force`)
 
-A true sample of the target scores about 1 per bin whatever its natural
-variation; stacked or too-close pairs fall in the small-radius bins where the
-target expects none, and cost. The gradient is written out by hand (chain rule
-through the pair distances; window weights, fields and H are held fixed between
-neighbour refreshes), so memory stays O(pairs).
+Local windows leave a true sample's natural variation inside the dead zone and
+catch outliers (holes, stacks, broken hard cores); regional windows match the
+PCF's mean with too few constraints to fit a sample's noise. Stacked or
+too-close pairs fall in the small-radius bins where the target expects none,
+and cost. The gradient is written out by hand (chain rule through the pair
+distances; window weights, deviations, fields and H are held fixed between
+neighbour refreshes, the expected counts near borders and edges linearised),
+so memory stays O(pairs).
 
 Two implementations: :func:`objective_reference` (plain numpy, the reference
 the tests compare against) and the fused numba kernels of

@@ -1,12 +1,16 @@
 """Per-map fields the edge-aware estimator and the synthesiser sample at points.
 
-A :class:`MapFields` holds, on the map's pixel grid: the intensity (points per
-unit area) implied by the density and the point count, the local spacing
+A :class:`MapFields` holds, on the map's pixel grid (area-averaged down to at
+most :data:`FIELD_MAX_SIDE` pixels per side): the intensity (points per unit
+area) implied by the density and the point count, the local spacing
 ``r_max(x)`` in which distances are measured, the latent correlation z (the
-guide), the target PCF from the palette, and the estimator's denominator (the
-tent counts a Poisson pattern of that intensity gives around a point at x,
-computed once per map; it corrects the domain border and sharp edges of
-density and correlation).
+guide), and the target PCF and its count dispersion from the palette. It
+evaluates the estimator's denominator at points
+(:meth:`MapFields.denominator_at`: the tent counts a Poisson pattern of that
+intensity gives around a point at x; exact where the neighbourhood is uniform,
+closed-form border shares or polar quadrature elsewhere; it corrects the
+domain border and sharp edges of density and correlation), and
+:class:`DenominatorTracker` recomputes it only for points that moved.
 
 Grids are (H, W, C) float32 numpy arrays; pixel (i, j) is centred at
 ((j + .5) / S, (i + .5) / S) with S = max(H, W), so the map covers

@@ -1,7 +1,7 @@
 """Pair correlation functions (PCFs) in units of the local point spacing.
 
-A PCF here is sampled at ``m`` radii ``rho_j = j * BIN_WIDTH`` (default 26 radii
-from 0 to 2.5) measured in units of ``r_max = 2 sqrt(A / (2 sqrt(3) n))``, the
+A PCF here is sampled at ``m`` radii ``rho_j = j * BIN_WIDTH`` (default :data:`PCF_BINS` = 52
+radii from 0 to 2.55) measured in units of ``r_max = 2 sqrt(A / (2 sqrt(3) n))``, the
 largest possible nearest-neighbour distance of n points in area A (hexagonal
 packing). Expressing distances in these units makes the same pattern at
 different densities have the same PCF (paper §5, after Zhou et al. 2012).
@@ -11,8 +11,9 @@ a neighbour at normalised distance u is counted into the two radii around it
 with linear ("tent") weights ``max(0, 1 - |u - rho_j| / BIN_WIDTH)``, and the
 count is divided by what a uniform (Poisson) pattern of the same intensity
 gives, so a Poisson pattern has PCF 1 at every radius. The radii start at 0
-and the tent is narrow (a tenth of r_max), so stacked and too-close pairs are
-seen: blue noise reads ~0 below 0.7 r_max, and a stacked pair costs. Pairs
+and the tent is narrow (half-width :data:`BIN_WIDTH` = 0.05 r_max), so stacked
+and too-close pairs are seen: blue noise reads ~0 below 0.7 r_max, and a
+stacked pair costs. Pairs
 beyond ``rho_{m-1} + BIN_WIDTH`` (:func:`neighbour_cutoff`) are never needed.
 
 The same tent binning is the synthesis objective's estimator
@@ -22,6 +23,7 @@ The same tent binning is the synthesis objective's estimator
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -74,6 +76,7 @@ def stationary_pcf(
     domain: tuple[float, float] = (1.0, 1.0),
     periodic: bool = True,
     radii: np.ndarray | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> np.ndarray:
     """PCF (m,) of a stationary pattern: points (n, 2) in ``[0, w] x [0, h]``.
 
@@ -81,14 +84,20 @@ def stationary_pcf(
     the border is handled by minus sampling: only points at least the neighbour
     cutoff away from every border serve as centres (their neighbourhoods are
     complete), while all points count as neighbours. Memory is bounded: centres
-    are processed in blocks of :data:`CENTRE_CHUNK`.
+    are processed in blocks of :data:`CENTRE_CHUNK` (``progress(fraction of the
+    centres done)`` after each; Ctrl+C is honoured between them).
     """
     radii = pcf_radii() if radii is None else radii
     n, w, h = len(points), *domain
     spacing = r_max(n, w * h)
     reach = neighbour_cutoff(radii) * spacing
     grid, centres = _stationary_centres(points, domain, periodic, reach)
-    counts = sum(block.sum(axis=0) for block in _centre_counts(grid, centres, reach, spacing, radii))
+    counts, done = np.zeros(len(radii)), 0
+    for block in _centre_counts(grid, centres, reach, spacing, radii):
+        counts += block.sum(axis=0)
+        done += len(block)
+        if progress is not None:
+            progress(done / len(centres))
     intensity = (n - 1) / (w * h)
     return counts / (len(centres) * intensity * spacing**2 * uniform_expectation(radii))
 

@@ -9,8 +9,9 @@ top-left ``w * size`` x ``h * size`` pixels and the rest stays 0.
 
 Each point adds a unit mass split bilinearly over the four pixels around it
 (so positions below a pixel still show), and the sums are clipped to [0, 1].
-At the default model's scale a fully black region holds about 0.15 points per
-pixel, so the clip almost never binds; it only bounds the input range.
+At the default model's scale (8,000 points per ink on 256 x 256 pixels) a
+fully black region holds about 0.12 points per pixel, so the clip almost never
+binds; it only bounds the input range.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ BASE = 0.2e9  # interpreter, numpy, Pillow, tifffile
 MAP_BYTES_PER_PIXEL = 150  # read_map with its colour conversion (1000 x 1000 px: 0.14 GB over the base)
 TEXT_POINTS_BYTES_PER_FILE_BYTE = 12  # read_points of text (1M points, 24 MB: 0.2 GB peak)
 NPY_POINTS_BYTES_PER_FILE_BYTE = 4
-SYNTHESIS_BASE = 0.3e9  # synthesis (issue 16; 20k / 100k / 1M points on a 256^2 map: 0.29 / 0.40 / 1.43 GB on 1 thread;
+SYNTHESIS_BASE = 0.3e9  # synthesis (20k / 100k / 1M points on a 256^2 map: 0.29 / 0.40 / 1.43 GB on 1 thread;
 # bench_speed.py with 2 threads: 10k 0.28, 100k 0.41, 300k 0.75, 1M 1.53 GB)
 SYNTHESIS_BYTES_PER_POINT = 1.25e3
 SYNTHESIS_BYTES_PER_PIXEL = 180

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli as run
+from helpers import run_cli as run
 from PIL import Image
 
 from patternshop import cli

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from helpers import run_cli
 from PIL import Image
 
 from export.convert import FAILED, SKIPPED, WRITTEN, convert_points, map_files, point_files

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -110,3 +111,62 @@ def test_cluster_label_is_a_clustered_colour() -> None:
         decoded = palette.locate(METHODS["clusters"](np.full((64, 64), 0.6), 2048, (1.0, 1.0), np.random.default_rng(seed)))
         assert decoded.b > 20
     assert palette.preset_ab()[LABELS["clusters"]][1] > 20
+
+
+# --- targets(): issue 14's targets read from a results dict ----------------------------------------
+def passing_results() -> dict:
+    """The smallest results dict that meets every target, each figure at (or just inside) its bound."""
+    locks = {f"{channel}_locked_{p}": 0.01 for channel in ("L", "ab") for p in ood.PHASES}
+    return {"stipplings": [{"better_than_kde": True}, {"better_than_kde": True}],
+            "stationary": [{"right_preset_share": 0.97, **locks}, {"right_preset_share": 0.9, **locks, "ab_locked_32": 0.05}],
+            "inventions": {"empty_min_L": 97.0, "one_point_share_L95": 0.99, "half_empty_ink_share_right": 0.02,
+                           "half_empty_points_share_right": 0.0049},
+            "point_counts": [{"ratio": 0.951}, {"ratio": 1.049}],
+            "cost": {"onnx_ms_256_one_thread": 25.0, "model_mb": 30.0}}
+
+
+def test_targets_met_at_their_bounds() -> None:
+    rows = ood.targets(passing_results())
+    assert len(rows) == 9 and all(row["met"] for row in rows), [row for row in rows if not row["met"]]
+    measured = {row["figure"]: row["measured"] for row in rows}
+    # synthesised points decide the half-empty target when there are any (the ink share, 2 %, would fail it)
+    assert measured["half-empty: resynthesised points in the empty half"] == "0.49 %"
+    assert measured["stipplings better than the best KDE in SSIM and MAE"] == "2 of 2"
+    assert measured["stationary: nearest preset right (min over cases)"] == "90.0 %"
+    assert measured["L and a,b variance locked to a 64/32-px phase (max)"] == "5.0 %"
+    assert measured["infer -> synthesize point count ratio"] == "0.951-1.049"
+
+
+def _set(section: str, key: str, value: float, row: int = -1) -> Callable[[dict], None]:
+    def change(results: dict) -> None:
+        (results[section] if isinstance(results[section], dict) else results[section][row])[key] = value
+    return change
+
+
+@pytest.mark.parametrize(("figure", "change"), [
+    ("empty raster: min L", _set("inventions", "empty_min_L", 96.99)),
+    ("one point: pixels at L >= 95", _set("inventions", "one_point_share_L95", 0.989)),
+    ("half-empty: resynthesised points in the empty half", _set("inventions", "half_empty_points_share_right", 0.005)),
+    ("L and a,b variance locked to a 64/32-px phase (max)", _set("stationary", "L_locked_64", 0.0501, row=0)),
+    ("L and a,b variance locked to a 64/32-px phase (max)", _set("stationary", "ab_locked_32", 0.0501)),
+    ("stipplings better than the best KDE in SSIM and MAE", _set("stipplings", "better_than_kde", False, row=0)),
+    ("stationary: nearest preset right (min over cases)", _set("stationary", "right_preset_share", 0.899)),
+    ("infer -> synthesize point count ratio", _set("point_counts", "ratio", 0.949, row=0)),
+    ("infer -> synthesize point count ratio", _set("point_counts", "ratio", 1.051)),
+    ("ONNX ms per 256^2, one thread", _set("cost", "onnx_ms_256_one_thread", 25.1)),
+    ("model size MB", _set("cost", "model_mb", 30.1)),
+])
+def test_each_target_fails_alone_past_its_bound(figure: str, change: Callable[[dict], None]) -> None:
+    results = passing_results()
+    change(results)
+    assert [row["figure"] for row in ood.targets(results) if not row["met"]] == [figure]
+
+
+def test_quick_half_empty_target_reads_the_ink_share() -> None:
+    """Without synthesis (--quick) the half-empty target is the share of the map's ink in the empty half."""
+    results = passing_results()
+    del results["inventions"]["half_empty_points_share_right"]
+    quick = {row["figure"]: row for row in ood.targets(results)}["half-empty: ink in the empty half (quick: no synthesis)"]
+    assert quick["measured"] == "2.00 %" and not quick["met"]
+    results["inventions"]["half_empty_ink_share_right"] = 0.0049
+    assert all(row["met"] for row in ood.targets(results))

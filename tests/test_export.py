@@ -8,7 +8,7 @@ import lightning
 import numpy as np
 import onnx
 import pytest
-from conftest import run_cli
+from helpers import run_cli
 import torch
 
 from data_gen.provenance import file_sha256

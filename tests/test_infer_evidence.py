@@ -19,7 +19,7 @@ from synthesis.generators import generate
 from synthesis.labmap import LabMap
 from synthesis.mapio import read_map
 from synthesis.points import PointSet, write_points
-from tests.conftest import run_cli
+from helpers import run_cli
 
 DEFAULT = 50_000
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import random_map, run_cli
+from helpers import random_map, run_cli
 from PIL import Image
 
 from synthesis.atomic import atomic_write_text
@@ -208,7 +208,7 @@ def test_ctrl_c_stops_convert_resynthesize_with_two_workers(tmp_path):
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
             process.wait()
-    assert process.returncode == 130
+    assert process.returncode == 130, err
     assert err.strip().splitlines() == ["patternshop convert: interrupted"]
     assert {p.name for p in out.iterdir()} == before  # nothing new, no temporaries
     deadline = time.monotonic() + 2.0

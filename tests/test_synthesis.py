@@ -110,10 +110,15 @@ def test_fast_objective_equals_the_reference(split_hood):
     hood, xy = split_hood
     loss, gradient = objective_reference(xy, hood)
     fast_loss, fast_gradient = FastObjective(hood)(xy)
-    # the fast path keeps counts and window slopes in float32 (half the memory traffic): sums of thousands
-    # of float32 terms agree to a few 1e-6 (1.8e-6 with palette v2's tables)
-    assert fast_loss == pytest.approx(loss, rel=1e-5)
-    np.testing.assert_allclose(fast_gradient, gradient, rtol=1e-4, atol=1e-5 * np.abs(gradient).max())
+    # The fast path keeps counts and window slopes in float32 (half the memory traffic; it agreed to 1e-10 while
+    # all float64), so the sums of thousands of float32 terms agree to about 1e-6, not better. Measured on this
+    # fixture's construction with point seeds 0-9 (this one: 0): loss relative difference 0.86e-6 - 1.83e-6 (1.77e-6);
+    # gradient max |difference| / max |gradient| 0.97e-6 - 2.26e-6 (1.38e-6), median relative difference per
+    # component 4.6e-7 - 6.6e-7 (5.8e-7). Bounds: about 2.5 times the worst seed.
+    assert fast_loss == pytest.approx(loss, rel=5e-6)
+    difference = np.abs(fast_gradient - gradient)
+    assert difference.max() < 5e-6 * np.abs(gradient).max()
+    assert np.median(difference / np.abs(gradient)) < 2e-6
 
 
 def test_gradient_matches_finite_differences(split_hood):
@@ -167,14 +172,24 @@ def blue_result():
 def test_blue_synthesis_has_a_hard_core_and_the_generators_pcf(blue_result):
     xy = blue_result.points.xy
     spacing = r_max(len(xy))
-    # no stacked points, no close pairs (round 1: 0; Poisson about 0.01; palette v2, seeds 0-4: 0.50-0.58)
-    assert nearest_neighbour(xy).min() > 0.45 * spacing
+    nn = nearest_neighbour(xy) / spacing
+    # The target's own generator keeps a hard core of 0.7 spacings (test_stationary_pcf_of_reference_processes);
+    # the synthesiser does not: its local windows score a count only beyond 2 standard deviations of the
+    # target's variability (synthesis/edgepcf.py), so a few isolated close pairs survive, in the interior as
+    # at the border. Measured here (n = 1500, seeds 0-29): min NN 0.494-0.633 spacings (seed 3: 0.499),
+    # share of points closer than 0.7 spacings 0.53-1.65 % (seed 3: 1.47 %), closer than 0.6 at most 0.53 %.
+    # A Poisson pattern has 80-82 % of its points closer than 0.7 spacings and a minimum near 0.01. What the
+    # product guarantees: no stacked points, no pair closer than about half a spacing, and close pairs rare.
+    assert nn.min() > 0.45
+    assert np.mean(nn < 0.7) < 0.025 and np.mean(nn < 0.6) < 0.01
     palette = load_palette()
     target = palette.pcf(*palette.preset_ab()["blue"])
     realised = stationary_pcf(xy, blue_result.points.domain, periodic=False)
     poisson = stationary_pcf(inhomogeneous_poisson(preset_map("blue"), 1500, 3), (1.0, 1.0), periodic=False)
-    assert np.abs(realised - target).mean() < 0.1 < 0.3 < np.abs(poisson - target).mean()
-    assert blue_result.losses[-1] < 0.01 * blue_result.losses[0]
+    # mean |PCF - target|, seeds 0-29: 0.0076-0.0127 (a true sample of the generator, periodic estimate: 0.018-0.028;
+    # the Poisson start: 0.39-0.44). 0.05 is the original bound, restored.
+    assert np.abs(realised - target).mean() < 0.05 < 0.3 < np.abs(poisson - target).mean()
+    assert blue_result.losses[-1] < 1e-3 * blue_result.losses[0]  # seeds 0-29: final / first 2.6e-5 - 8.4e-5
 
 
 def test_white_target_keeps_the_independent_sample():

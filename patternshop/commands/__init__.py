@@ -163,22 +163,24 @@ def check_point_file(args: argparse.Namespace, path: str | Path) -> None:
 
 # --- inputs and outputs -------------------------------------------------------------------------------------
 def check_output(output: str | Path, *inputs: str | Path, suffixes: tuple[str, ...] = ()) -> Path:
-    """Validate an output path before any work: right suffix, existing folder, not a folder, not one of the inputs.
+    """Validate an output path before any work: right suffix, not a folder, not one of the inputs, and an
+    existing folder that takes a new file (:func:`synthesis.atomic.check_writable`).
 
     Raises:
-        PatternshopError: the suffix is wrong, the folder is missing, or the output would overwrite an input.
+        PatternshopError: the suffix is wrong, the output would overwrite an input, or the folder is not writable.
+        FileNotFoundError: the folder is missing.
     """
+    from synthesis.atomic import check_writable
+
     output = Path(output)
     if suffixes and output.suffix.lower() not in suffixes:
         raise PatternshopError(f"{output}: output must end in {' or '.join(suffixes)}")
-    if not output.parent.is_dir():
-        raise PatternshopError(f"{output}: folder {output.parent} does not exist")
     if output.is_dir():
         raise PatternshopError(f"{output}: is a folder")
     for source in inputs:
         if Path(source).resolve() == output.resolve():
             raise PatternshopError(f"{output}: output would overwrite the input")
-    return output
+    return check_writable(output)
 
 
 def check_map_output(output: str | Path, *inputs: str | Path) -> Path:

@@ -45,6 +45,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     convert.add_argument("--threads", type=positive_int, default=1, metavar="N",
                          help="CPU threads per worker (ONNX Runtime, or the synthesiser with --resynthesize; default 1): "
                          "on a 2-core machine prefer --workers 2 --threads 1")
+    convert.add_argument("--scheduler", metavar="ADDRESS",
+                         help="run on the workers of this Dask scheduler (tcp://host:8786) instead of --workers local "
+                         "processes; the workers must see IN_DIR and OUT_DIR at the same absolute paths (docs/distributed.md)")
     convert.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of the output TIFFs (default 16)")
     convert.add_argument("--overwrite", action="store_true", help="replace existing outputs instead of skipping their inputs")
     convert.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -86,18 +89,19 @@ def run_convert(args: argparse.Namespace) -> int:
         settings = SynthesisSettings(points=args.points, points_per_ink=args.points_per_ink, schedule=args.schedule,
                                      iterations=args.iterations, seed=args.seed, palette=args.palette)
         results = resynthesize_maps(sources, args.out_dir, settings, workers=args.workers, threads=args.threads,
-                                    overwrite=args.overwrite, progress=progress, memory_limit=memory_limit)
+                                    overwrite=args.overwrite, progress=progress, memory_limit=memory_limit,
+                                    scheduler=args.scheduler)
     else:
-        from export.runtime import OnnxModel, check_palette
+        from patternshop.api import load_model
 
         sources = point_files(args.in_dir)
         if not sources:
             raise PatternshopError(f"{args.in_dir}: no point files (.txt, .csv, .xy, .pts, .npy)")
-        model = OnnxModel(args.model, threads=args.threads)
-        check_palette(model)
+        model = load_model(args.model, threads=args.threads)
         results = convert_points(sources, args.out_dir, model, batch_size=args.batch_size, workers=args.workers,
                                  bits=args.bits, overwrite=args.overwrite, progress=progress, points_per_ink=args.points_per_ink,
-                                 memory_limit=memory_limit, symmetries=args.symmetries, denoise=not args.no_denoise)
+                                 memory_limit=memory_limit, symmetries=args.symmetries, denoise=not args.no_denoise,
+                                 scheduler=args.scheduler)
     for result in results:
         for note in result.warnings:
             warnings.warn(note, PatternshopWarning, stacklevel=1)

@@ -58,10 +58,10 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
 
 
 def run_edit(args: argparse.Namespace) -> None:
-    from synthesis.edits import density_gradient, expand, read_region, rect_region, set_correlation
+    from patternshop import api
     from synthesis.errors import PatternshopError
     from synthesis.atomic import all_or_nothing
-    from synthesis.mapio import map_size, read_map, write_map, write_preview
+    from synthesis.mapio import map_size
 
     colour = args.preset is not None or args.ab is not None
     if (args.rect or args.region) and not (colour or args.gradient):
@@ -80,21 +80,13 @@ def run_edit(args: argparse.Namespace) -> None:
     out_width, out_height = width + left + right, height + top + bottom
     check_memory(args, edit_bytes(width * height, out_width * out_height),
                  f"editing into a {out_width}x{out_height} px map")
-    ab = None
-    if args.preset is not None:
-        from synthesis.palette import load_palette
-
-        presets = load_palette(args.palette).preset_ab()
-        if args.preset not in presets:
-            raise PatternshopError(f"unknown preset {args.preset!r}; presets: {', '.join(presets)}")
-        ab = presets[args.preset]
-    elif args.ab is not None:
-        ab = tuple(args.ab)
-    lab_map = read_map(args.map)
+    ab = api.preset(args.preset, palette=args.palette) if args.preset is not None else args.ab
+    lab_map = api.read_map(args.map)
     if args.expand:
-        lab_map = expand(lab_map, tuple(args.expand), tuple(args.fill) if args.fill else None)
+        lab_map = api.expand(lab_map, tuple(args.expand), tuple(args.fill) if args.fill else None)
     shape = (lab_map.height, lab_map.width)
-    region = rect_region(shape, tuple(args.rect)) if args.rect else read_region(args.region, shape) if args.region else None
+    region = (api.rect_region(shape, tuple(args.rect)) if args.rect else api.read_region(args.region, shape) if args.region
+              else None)
     if args.invert:
         region = 1.0 - region
     if region is not None and not region.any():
@@ -103,12 +95,12 @@ def run_edit(args: argparse.Namespace) -> None:
                                f"{lab_map.height} px map (domain {lab_map.domain[0]:.4g} x {lab_map.domain[1]:.4g}): "
                                "the edit would change nothing")
     if ab is not None:
-        lab_map = set_correlation(lab_map, ab, region)
+        lab_map = api.set_correlation(lab_map, ab, region)
     if args.gradient:
         x0, y0, d0, x1, y1, d1 = args.gradient
-        lab_map = density_gradient(lab_map, (x0, y0), (x1, y1), (d0, d1), args.gradient_mode, region)
+        lab_map = api.density_gradient(lab_map, (x0, y0), (x1, y1), (d0, d1), args.gradient_mode, region)
     with all_or_nothing():
-        write_map(lab_map, output, bits=args.bits)
+        api.write_map(lab_map, output, bits=args.bits)
         if preview is not None:
-            write_preview(lab_map, preview)
+            api.write_preview(lab_map, preview)
     print(f"wrote {output} ({lab_map.width}x{lab_map.height} px)", file=sys.stderr)

@@ -85,10 +85,10 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
 
 
 def run_from_image(args: argparse.Namespace) -> None:
+    from patternshop import api
     from synthesis.errors import PatternshopError
     from synthesis.labmap import POINTS_PER_INK
     from synthesis.mapio import write_map, write_preview
-    from synthesis.photo import check_ab, parse_correlation, parse_label_key, photo_to_map
 
     if args.label and not args.labels:
         raise PatternshopError("--label needs --labels IMAGE")
@@ -104,25 +104,17 @@ def run_from_image(args: argparse.Namespace) -> None:
         if path is not None and not path.parent.is_dir():
             raise PatternshopError(f"{path}: folder {path.parent} does not exist")
 
-    names = [args.preset, args.mask_preset, *(spec.partition("=")[2] for spec in args.label)]
-    presets = {}
-    if any(name and "," not in name for name in names) or (args.preset is None and args.ab is None):
-        from synthesis.palette import load_palette
-
-        presets = load_palette(args.palette).preset_ab()
-    ab = check_ab(args.ab) if args.ab is not None else parse_correlation(args.preset or "blue", presets)
-    mask_ab = None
-    if args.mask:
-        mask_ab = check_ab(args.mask_ab) if args.mask_ab is not None else parse_correlation(args.mask_preset, presets)
-    label_ab = {}
+    label_correlations = {}
     for spec in args.label:
         key, equals, value = spec.partition("=")
         if not equals:
             raise PatternshopError(f"--label {spec!r}: write KEY=CORRELATION, e.g. 0=blue or '#ff0000=49,2'")
-        label_ab[parse_label_key(key)] = parse_correlation(value, presets)
-
-    lab_map = photo_to_map(args.photo, ab, gamma=args.gamma, levels=args.levels, invert=args.invert,
-                           labels=args.labels, label_ab=label_ab, mask=args.mask, mask_ab=mask_ab, max_side=args.max_side)
+        label_correlations[key] = value
+    mask_correlation = tuple(args.mask_ab) if args.mask_ab is not None else args.mask_preset
+    lab_map = api.from_image(args.photo, correlation=tuple(args.ab) if args.ab is not None else args.preset or "blue",
+                             levels=args.levels, gamma=args.gamma, invert=args.invert, labels=args.labels,
+                             label_correlations=label_correlations, mask=args.mask, mask_correlation=mask_correlation,
+                             max_side=args.max_side, palette=args.palette)
     if preview is None:
         write_map(lab_map, output, bits=args.bits)
     else:  # the preview is renamed into place only once the map is written: both or neither

@@ -94,21 +94,19 @@ def run_infer(args: argparse.Namespace) -> None:
     report_path = check_output(args.report, args.points, args.output, suffixes=(".json",)) if args.report else None
     check_point_file(args, args.points)
 
-    from export.evidence import ScaleChoice, choose_points_per_ink
-    from export.runtime import OnnxModel, check_palette, infer_map, map_width, raster_scale
+    from export.runtime import map_width, raster_scale
+    from patternshop import api
     from synthesis.atomic import all_or_nothing, atomic_write_text
     from synthesis.mapio import write_map, write_preview
-    from synthesis.points import read_points
 
-    model = OnnxModel(args.model, threads=args.threads)
-    check_palette(model)
-    points = read_points(args.points, domain=tuple(args.domain) if args.domain else None, allow_empty=True)
-    scale = ScaleChoice(args.points_per_ink, False) if args.points_per_ink else choose_points_per_ink(points, POINTS_PER_INK)
+    model = api.load_model(args.model, threads=args.threads)
+    points = api.read_points(args.points, domain=tuple(args.domain) if args.domain else None, allow_empty=True)
+    scale = api.infer_scale(points, args.points_per_ink)
     (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink, scale.points_per_ink)
     width = map_width(points.domain, model, args.width)
     check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
                  f"inferring a {width} px wide map from a {side}x{side} px raster ({scale.points_per_ink:g} points per ink)")
-    inference = infer_map(points, model, width=args.width, scale=scale, fill_thin=not args.no_fill,
+    inference = api.infer(points, model=model, points_per_ink=args.points_per_ink, width=args.width, fill=not args.no_fill,
                           calibrate=not args.no_calibrate, symmetries=args.symmetries, sharpen=not args.no_sharpen,
                           denoise=not args.no_denoise)
     report = {"points": args.points, "n": len(points), "model": str(model.path), "output": str(output), **inference.report()}

@@ -47,6 +47,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     analyze.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     analyze.add_argument("--domain", nargs=2, type=float, metavar=("W", "H"), help="domain of the points (default: from the file, else 1 1)")
     analyze.add_argument("--palette", metavar="FILE", help="palette asset (default: the shipped one)")
+    analyze.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_threads_option(analyze)
     analyze.set_defaults(func=run_analyze)
 
@@ -57,10 +58,11 @@ def run_palette(args: argparse.Namespace) -> None:
 
     check_palette_file(args.palette)
     if args.list:
+        from patternshop.api import presets
         from synthesis.palette import hue_chroma
 
         listing = {}
-        for name, (a, b) in load_palette(args.palette).preset_ab().items():
+        for name, (a, b) in presets(args.palette).items():
             hue, chroma = hue_chroma(a, b)
             listing[name] = {"a": a, "b": b, "hue": round(hue, 1), "chroma": round(chroma, 1)}
         print(json.dumps(listing, indent=2))
@@ -86,24 +88,17 @@ def run_palette(args: argparse.Namespace) -> None:
 
 
 def run_analyze(args: argparse.Namespace) -> None:
-    from synthesis.analysis import analyze_points, plot_analysis
-    from synthesis.palette import load_palette
-    from synthesis.points import read_points
+    from patternshop import api
 
     plot = check_output(args.plot, args.points, suffixes=(".png",)) if args.plot else None
     check_palette_file(args.palette)
     check_point_file(args, args.points)
-    points = read_points(args.points, domain=tuple(args.domain) if args.domain else None)
+    points = api.read_points(args.points, domain=tuple(args.domain) if args.domain else None)
     check_memory(args, analysis_bytes(len(points)), f"analysing {len(points):,} points")
-    result = analyze_points(points, load_palette(args.palette))
-    if "warning" in result:
-        import warnings
-
-        from synthesis.errors import PatternshopWarning
-
-        warnings.warn(result["warning"], PatternshopWarning, stacklevel=1)
+    result = api.analyze(points, palette=args.palette,  # warns when the pattern lies outside the palette's corpus
+                         progress_bar=not args.no_progress and sys.stderr.isatty())
     if plot is not None:
-        plot_analysis(result, plot)
+        api.plot_analysis(result, plot)
     if args.json:
         print(json.dumps(result))
         return

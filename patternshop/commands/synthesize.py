@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     parser.add_argument("--points", type=positive_int, metavar="N", help="number of points (default: from the ink)")
     parser.add_argument("--points-per-ink", type=positive_float, default=POINTS_PER_INK, metavar="K",
                         help=f"points for a fully black map (default {POINTS_PER_INK})")
-    parser.add_argument("--schedule", choices=("fast",), default="fast", help="optimisation schedule (only fast: the paper's 5,000-iteration schedule measured worse at 12x the cost and was removed)")
+    parser.add_argument("--schedule", choices=("fast",), default="fast", help="optimisation schedule (only fast: 250 iterations, every point a centre at each)")
     parser.add_argument("--iterations", type=positive_int, metavar="K", help="override the schedule's iteration count")
     parser.add_argument("--seed", type=seed, default=0, help="random seed, 0 to 2^32-1 (default 0); same seed, same points")
     parser.add_argument("--dot-sizes", action="store_true", help="give each point a radius so the rendering matches the L channel's tone")
@@ -80,38 +80,34 @@ def run_synthesize(args: argparse.Namespace) -> None:
     if png is not None:
         check_memory(args, render_bytes(args.png_width, args.png_width), f"a {args.png_width} px wide PNG")
 
-    from synthesis.mapio import read_map
-    from synthesis.palette import load_palette
-    from synthesis.points import PointSet, write_points
-    from synthesis.render import render_png, write_svg
-    from synthesis.synthesize import point_count, synthesize
-    from synthesis.tone import density_fidelity, dot_sizes
+    from patternshop import api
+    from synthesis.tone import density_fidelity
 
-    lab_map = read_map(args.map)
-    n = args.points if args.points is not None else point_count(lab_map, args.points_per_ink)
+    lab_map = api.read_map(args.map)
+    n = args.points if args.points is not None else api.point_count(lab_map, args.points_per_ink)
     check_memory(args, synthesis_bytes(pixels, n), f"synthesis of {n:,} points"
                  + ("" if args.points is not None else f" ({args.points_per_ink:g} points per ink x mean density)"))
-    def write_preview(done: int, xy) -> None:  # noqa: ANN001 - (n, 2) array
+    def write_preview(done: int, total: int, xy) -> None:  # noqa: ANN001 - (n, 2) array
         if done % args.preview_every == 0:
-            write_points(PointSet(xy.copy(), lab_map.domain), preview)
+            api.write_points(api.PointSet(xy.copy(), lab_map.domain), preview)
 
     try:
-        result = synthesize(lab_map, n=n, palette=load_palette(args.palette), schedule=args.schedule,
-                            iterations=args.iterations, seed=args.seed, threads=args.threads,
-                            progress=not args.no_progress and sys.stderr.isatty(),
-                            on_iteration=write_preview if preview is not None else None)
+        result = api.synthesize(lab_map, points=n, iterations=args.iterations, seed=args.seed, dot_sizes=args.dot_sizes,
+                                schedule=args.schedule, palette=args.palette, threads=args.threads,
+                                progress=write_preview if preview is not None else None,
+                                progress_bar=not args.no_progress and sys.stderr.isatty())
     finally:
         if preview is not None:
             preview.unlink(missing_ok=True)
-    points = dot_sizes(result.points, lab_map) if args.dot_sizes else result.points
+    points = result.points
     report = result.report() | {"map": args.map, "seed": args.seed, "dot_sizes": args.dot_sizes} | density_fidelity(points, lab_map)
     with all_or_nothing():  # points, PNG, SVG and report replace the old ones together, or none does
-        write_points(points, output)
+        api.write_points(points, output)
         if png is not None:
-            render_png(points, png, width_px=args.png_width)
+            api.render_png(points, png, width_px=args.png_width)
         if svg is not None:
-            write_svg(points, svg, width_mm=args.svg_width, pen_width_mm=args.pen_width,
-                      min_radius_mm=args.min_radius, max_radius_mm=args.max_radius)
+            api.write_svg(points, svg, width_mm=args.svg_width, pen_width_mm=args.pen_width,
+                          min_radius_mm=args.min_radius, max_radius_mm=args.max_radius)
         if report_path is not None:
             atomic_write_text(report_path, json.dumps(report, indent=2) + "\n")
     print(f"wrote {output}: {report['n']} points in {report['seconds']:.1f} s ({report['iterations']} iterations, "

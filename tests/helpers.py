@@ -1,0 +1,35 @@
+"""Helpers shared by test modules, imported as ``from helpers import ...``.
+
+A plain module, not the conftest: pytest puts this folder on ``sys.path`` (its
+default "prepend" import mode, the folder having no ``__init__.py``), so the
+import works under ``pytest`` and ``python -m pytest`` alike, from any working
+directory. Fixtures stay in ``conftest.py``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from patternshop import cli
+from synthesis.labmap import LabMap
+
+
+def random_map(height: int, width: int, seed: int = 0) -> LabMap:
+    """A (height, width) map with uniform random L, a, b over their whole ranges."""
+    rng = np.random.default_rng(seed)
+    lab = np.stack(
+        [rng.uniform(0, 100, (height, width)), rng.uniform(-128, 127, (height, width)), rng.uniform(-128, 127, (height, width))],
+        axis=-1,
+    )
+    return LabMap(lab)
+
+
+def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    """Run the ``patternshop`` CLI in-process; returns (exit status, stdout, stderr)."""
+    try:
+        status = cli.main(argv)
+    except SystemExit as exc:  # argparse's --help, --version and usage errors
+        status = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return status, out, err
