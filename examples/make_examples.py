@@ -21,7 +21,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
@@ -102,12 +101,7 @@ def make_gradient(cfg: DictConfig, colors: dict[str, np.ndarray]) -> LabMap:
 def make_points(cfg: DictConfig, out_dir: Path, name: str) -> None:
     """Synthesise ``out_dir/NAME_points.txt`` from ``out_dir/NAME.tif`` (the map as written, 16-bit quantised)."""
     lab_map = read_map(out_dir / f"{name}.tif")
-    threads = torch.get_num_threads()
-    torch.set_num_threads(cfg.threads)
-    try:
-        result = synthesize(lab_map, n=point_count(lab_map, cfg.points_per_ink), seed=cfg.seed)
-    finally:
-        torch.set_num_threads(threads)
+    result = synthesize(lab_map, n=point_count(lab_map, cfg.points_per_ink), seed=cfg.seed, threads=cfg.threads)
     write_points(result.points, out_dir / f"{name}_points.txt")
     print(f"wrote {out_dir / name}_points.txt ({len(result.points)} points, {result.seconds:.1f} s)")
 
