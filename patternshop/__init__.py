@@ -1,4 +1,4 @@
-"""Patternshop: edit point patterns as CIELAB images. The ``patternshop`` command lives here."""
+"""Patternshop: edit point patterns as CIELAB images. `import patternshop` gives the Python API (:mod:`patternshop.api`); the ``patternshop`` command (:mod:`patternshop.cli`) calls the same functions."""
 
 from typing import TYPE_CHECKING, Any
 
