@@ -102,9 +102,7 @@ __all__ = sorted(["POINTS_PER_INK", *_REEXPORTS, *_FUNCTIONS])
 def __getattr__(name: str) -> Any:
     if name not in _REEXPORTS:
         raise AttributeError(f"module 'patternshop.api' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_REEXPORTS[name]), name)
-    globals()[name] = value  # later look-ups skip this function
-    return value
+    return getattr(importlib.import_module(_REEXPORTS[name]), name)  # not cached: always the library's current function
 
 
 def __dir__() -> list[str]:

@@ -25,7 +25,7 @@ from patternshop.commands import add_max_memory_option, thread_limit
 
 COMMAND_MODULES = ("patternshop.commands.maps", "patternshop.commands.points", "patternshop.commands.palette", "patternshop.commands.synthesize",
                    "patternshop.commands.network", "patternshop.commands.convert", "patternshop.commands.edit",
-                   "patternshop.commands.from_image")
+                   "patternshop.commands.from_image", "patternshop.commands.studio")
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130

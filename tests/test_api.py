@@ -7,6 +7,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from synthesis.errors import PatternshopError, PatternshopWarning
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
+DOCS_PAGE = ROOT / "docs" / "python-api.md"
 API_HEADING = "## Python API"
 HEAVY_MODULES = ("torch", "onnxruntime", "lightning", "numba")
 
@@ -49,29 +51,37 @@ def python_examples(path: Path, heading: str = API_HEADING) -> list[str]:
     return blocks
 
 
-def run_examples(path: Path) -> subprocess.CompletedProcess:
-    """Run the section's examples in order, as one script, in a fresh interpreter in the repository's root."""
-    blocks = python_examples(path)
-    assert len(blocks) >= 5, f"expected an example per workflow in {path.name}, found {len(blocks)}"
+def run_examples(path: Path, heading: str) -> subprocess.CompletedProcess:
+    """Run a section's examples in order, as one script, in a fresh interpreter in the repository's root."""
+    blocks = python_examples(path, heading)
+    assert blocks, f"{path.name}: no ```python examples under {heading!r}"
     script = "\n\n".join(blocks)
     return subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=300)
 
 
-# --- (a) the README's examples ------------------------------------------------------------------------------
+# --- (a) the documented examples ----------------------------------------------------------------------------
 def test_readme_python_api_examples_run():
-    result = run_examples(README)
+    result = run_examples(README, API_HEADING)
     assert result.returncode == 0, result.stderr[-3000:]
-    out = ROOT / "out" / "api"
+
+
+def test_docs_python_api_examples_run():
+    """docs/python-api.md: one example per workflow."""
+    assert len(python_examples(DOCS_PAGE, "# Python API")) >= 5
+    started = time.time()
+    result = run_examples(DOCS_PAGE, "# Python API")
+    assert result.returncode == 0, result.stderr[-3000:]
     for name in ("photo.txt", "photo.svg", "logo_edited.tif", "logo_edited.txt", "green_analysis.png"):
-        assert (out / name).is_file(), name
+        path = ROOT / "out" / "api" / name
+        assert path.is_file() and path.stat().st_mtime >= started - 1, name
     assert "50/50 iterations" in result.stdout
 
 
 def test_examples_helper_reads_one_section(tmp_path):
     page = tmp_path / "page.md"
     page.write_text("# T\n```python\nskip()\n```\n## Python API\ntext\n```python\na = 1\n```\n### Sub\n```python\nb = 2\n```\n"
-                    "## Next\n```python\nnot_this()\n```\n")
-    assert python_examples(page) == ["a = 1\n", "b = 2\n"]
+                    "```python\n# a comment\nc = 3\n```\n## Next\n```python\nnot_this()\n```\n")
+    assert python_examples(page) == ["a = 1\n", "b = 2\n", "# a comment\nc = 3\n"]
     (tmp_path / "none.md").write_text("# T\n")
     with pytest.raises(AssertionError, match="no section"):
         python_examples(tmp_path / "none.md")

@@ -48,7 +48,10 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     parser.add_argument("--preview-every", type=positive_int, metavar="K",
                         help="write the points so far to the preview file at the start (the density-matched start, "
                         "within a second of the map being read) and every K iterations, for an editor that shows the "
-                        "points while they form; each write is atomic; the file is removed when the run ends")
+                        "points while they form. Each write is atomic: the file is always a complete point file. It is "
+                        "removed when the run ends, by Ctrl+C too; a run killed with kill -9 cannot remove it, so its last "
+                        "preview stays (and the temporary file of a write it was killed in) until the next run with this "
+                        "preview file replaces it (and removes that temporary)")
     parser.add_argument("--preview", metavar="FILE", help="preview file for --preview-every (default: OUTPUT with "
                         "'.preview' before its suffix, e.g. points.preview.txt; .npy writes fastest)")
     add_threads_option(parser)
