@@ -56,7 +56,7 @@ from export.density import REGULAR_NOISE_SHARE, denoise_density, poisson_resampl
 from synthesis.edits import resize
 from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
                              fill_thin_correlation, local_evidence, summarise, zoom_levels)
-from synthesis.errors import PatternshopError, PatternshopWarning
+from synthesis.errors import PatternshopError, PatternshopWarning, require_file
 from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.points import PointSet
 from synthesis.raster import point_raster
@@ -96,8 +96,7 @@ class OnnxModel:
                                    f"with 'patternshop export runs/procedural/checkpoints/best.ckpt {DEFAULT_MODEL}', or pass --model")
         self.path = Path(path) if path is not None else DEFAULT_MODEL
         self.threads = threads
-        if not self.path.is_file():
-            raise PatternshopError(f"{self.path}: no such model file")
+        require_file(self.path, "an ONNX model file", missing="no such model file")
         if threads < 1:
             raise PatternshopError(f"threads must be at least 1, got {threads}")
         import onnxruntime  # here, not at the top: convert's rasterising workers import this module without it

@@ -53,24 +53,30 @@ def radial_spectrum(points: PointSet) -> tuple[np.ndarray, np.ndarray]:
 
 
 DEGENERATE_SHARE = 0.5  # a pattern with more than this share of (nearly) coincident points has no correlation to decode
-COINCIDENT = 0.05  # in units of r_max: the generators' clustered presets have 4 % of points this close, not 50 %
+COINCIDENT = 0.05  # in units of r_max (of the occupied area): the generators' clustered presets have up to 4 % of points this close, not 50 %
 
 
 def coincident_points(points: PointSet, progress: Progress | None = None) -> int:
-    """How many points have another closer than :data:`COINCIDENT` r_max (r_max of the whole pattern and domain).
+    """How many points have another closer than :data:`COINCIDENT` r_max.
 
-    Works in blocks of :data:`CHECK_CHUNK` points (``progress(fraction)`` after each), so Ctrl+C is honoured at once.
+    r_max is that of the area the points occupy (the cells, about one domain-wide
+    r_max on a side, that hold a point), so that a pattern filling a small part of
+    its domain (a stippled object on a large white canvas) is judged at its own
+    spacing; piles of coincident points stay coincident at any scale. Works in
+    blocks of :data:`CHECK_CHUNK` points (``progress(fraction)`` after each), so
+    Ctrl+C is honoured at once.
     """
     n = len(points)
     if n < 2:
         return 0
     w, h = points.domain
-    spacing = float(r_max(n, w * h))
-    grid = CellGrid(points.xy, points.domain, spacing)
+    grid = CellGrid(points.xy, points.domain, float(r_max(n, w * h)))
+    occupied = min(np.count_nonzero(np.diff(grid.start)) * float(np.prod(grid.cell)), w * h)
+    reach = COINCIDENT * float(r_max(n, occupied))
     coincident = 0
     for start in range(0, n, CHECK_CHUNK):
         stop = min(start + CHECK_CHUNK, n)
-        coincident += int(grid.has_neighbour(points.xy[start:stop], COINCIDENT * spacing, np.arange(start, stop)).sum())
+        coincident += int(grid.has_neighbour(points.xy[start:stop], reach, np.arange(start, stop)).sum())
         if progress is not None:
             progress(stop / n)
     return coincident
@@ -105,6 +111,9 @@ def analyze_points(points: PointSet, palette: Palette, progress: bool = False) -
     """
     from tqdm import tqdm
 
+    from synthesis.kernels import announce_compilation
+
+    announce_compilation(("synthesis.cells",), "analysis kernels", seconds=5)
     w, h = points.domain
     with tqdm(total=100.0, desc="analyze", disable=not progress, leave=False,
               bar_format="{desc}{percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]") as bar:

@@ -15,8 +15,9 @@ import os
 import numpy as np
 from PIL import Image
 
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, require_file
 from synthesis.labmap import AB_RANGE, L_RANGE, LabMap
+from synthesis.photo import check_ab
 
 GRADIENT_MODES = ("set", "multiply")
 
@@ -48,6 +49,7 @@ def read_region(path: PathLike, shape: tuple[int, int]) -> np.ndarray:
     Raises:
         PatternshopError: missing or unreadable image, or not (H, W) pixels.
     """
+    require_file(path, "a mask image file")
     try:
         with Image.open(path) as image:
             image.load()
@@ -75,9 +77,7 @@ def _weights(lab_map: LabMap, region: np.ndarray | None) -> np.ndarray:
 
 def set_correlation(lab_map: LabMap, ab: tuple[float, float], region: np.ndarray | None = None) -> LabMap:
     """The map with a, b set to ``ab`` (each in [-128, 127]) inside ``region`` (default: everywhere); L unchanged."""
-    target = np.asarray(ab, np.float32)
-    if target.shape != (2,) or not np.all((target >= AB_RANGE[0]) & (target <= AB_RANGE[1])):
-        raise PatternshopError(f"a, b must be two numbers in [{AB_RANGE[0]:g}, {AB_RANGE[1]:g}], got {tuple(np.ravel(ab))}")
+    target = np.asarray(check_ab(ab), np.float32)
     weight = _weights(lab_map, region)[..., None]
     lab = lab_map.lab.copy()
     lab[..., 1:] = (1.0 - weight) * lab[..., 1:] + weight * target
@@ -131,10 +131,10 @@ def expand(lab_map: LabMap, margins: tuple[int, int, int, int], fill: tuple[floa
     """
     left, top, right, bottom = (int(m) for m in margins)
     if min(left, top, right, bottom) < 0:
-        raise PatternshopError(f"margins must be >= 0 pixels, got {tuple(margins)}")
+        raise PatternshopError(f"margins must be >= 0 pixels, got {left}, {top}, {right}, {bottom}")
     padding = ((top, bottom), (left, right), (0, 0))
     if fill is not None and not (L_RANGE[0] <= fill[0] <= L_RANGE[1] and all(AB_RANGE[0] <= v <= AB_RANGE[1] for v in fill[1:])):
-        raise PatternshopError(f"fill needs L in [0, 100] and a, b in [-128, 127], got {tuple(fill)}")
+        raise PatternshopError(f"fill needs L in [0, 100] and a, b in [-128, 127], got {', '.join(f'{float(v):g}' for v in fill)}")
     if fill is None:
         return LabMap(np.pad(lab_map.lab, padding, mode="edge"))
     expanded = np.empty((lab_map.height + top + bottom, lab_map.width + left + right, 3), np.float32)

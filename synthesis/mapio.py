@@ -28,7 +28,7 @@ import tifffile
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from synthesis.atomic import atomic_path, atomic_paths
-from synthesis.errors import MapFormatError, PatternshopError, PatternshopWarning
+from synthesis.errors import MapFormatError, PatternshopError, PatternshopWarning, require_file
 from synthesis.labmap import LabMap
 from synthesis.version import version_string
 
@@ -95,8 +95,7 @@ def map_size(path: PathLike) -> tuple[int, int]:
     path = Path(path)
     if is_channel_path(path):
         path = channel_paths(path)[0]
-    if not path.is_file():
-        raise MapFormatError(f"{path}: no such file")
+    require_file(path, "a map file", MapFormatError)
     suffix = path.suffix.lower()
     if suffix in TIFF_SUFFIXES:
         try:
@@ -126,8 +125,7 @@ def read_map(path: PathLike) -> LabMap:
     path = Path(path)
     if is_channel_path(path):
         return read_channels(path)
-    if not path.is_file():
-        raise MapFormatError(f"{path}: no such file")
+    require_file(path, "a map file", MapFormatError)
     suffix = path.suffix.lower()
     if suffix in TIFF_SUFFIXES:
         return _read_tiff(path)
@@ -148,15 +146,21 @@ def _read_tiff(path: Path) -> LabMap:
             sampleformat = int(page.sampleformat)
             pixels = page.asarray()
             axes = page.axes
+            pages = sum(not getattr(p, "is_reduced", False) for p in tif.pages)  # thumbnails are no pages of their own
     except (tifffile.TiffFileError, ValueError, OSError, KeyError, IndexError, RuntimeError) as exc:
         # RuntimeError: imagecodecs' decoder errors (e.g. a truncated deflate stream)
         raise MapFormatError(f"{path}: not a readable TIFF ({_reason(exc)})") from exc
+    if pages > 1:
+        _warn_ignored(path, f"the TIFF has {pages} pages; only the first is read")
     pixels = _to_height_width_samples(pixels, axes, path)
     if photometric in (_PHOTOMETRIC_CIELAB, _PHOTOMETRIC_ICCLAB):
         if sampleformat == 3 or bits not in (8, 16):
             raise MapFormatError(f"{path}: Lab TIFF with {bits}-bit samples is not supported (use 8 or 16 bit integers)")
         if pixels.shape[2] < 3:
             raise MapFormatError(f"{path}: Lab TIFF with {pixels.shape[2]} samples per pixel (need 3)")
+        if pixels.shape[2] > 3:
+            _warn_ignored(path, f"the Lab TIFF has {pixels.shape[2]} samples per pixel: only L, a, b are read, "
+                          f"the extra {pixels.shape[2] - 3} (alpha) ignored")
         return _decode_lab(pixels[..., :3], bits, icc=photometric == _PHOTOMETRIC_ICCLAB)
     if photometric in (_PHOTOMETRIC_GREY, _PHOTOMETRIC_RGB):
         _warn_srgb(path)
@@ -198,9 +202,16 @@ def _normalised_rgb(pixels: np.ndarray, path: Path) -> np.ndarray:
         raise MapFormatError(f"{path}: floating-point RGB images are not supported")
     rgb = pixels.astype(np.float64) / np.iinfo(pixels.dtype).max
     channels = rgb.shape[2]
+    if channels in (2, 4):
+        _warn_ignored(path, "the alpha channel is ignored (a map has no transparency)")
     if channels in (1, 2):  # grey, grey + alpha
         return np.repeat(rgb[..., :1], 3, axis=2)
     return rgb[..., :3]
+
+
+def _warn_ignored(path: Path, what: str) -> None:
+    """Warn that part of a map file (pages, channels) is not read."""
+    warnings.warn(f"{path}: {what}", PatternshopWarning, stacklevel=4)
 
 
 def _warn_srgb(path: Path) -> None:
@@ -214,14 +225,19 @@ def _open_image(path: Path) -> Image.Image:
     try:
         image = Image.open(path)
         image.load()
+        frames = getattr(image, "n_frames", 1)
     except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
         raise MapFormatError(f"{path}: not a readable image ({_reason(exc)})") from exc
+    if frames > 1:
+        _warn_ignored(path, f"the image has {frames} frames; only the first is read")
     return image
 
 
 def _read_srgb_image(path: Path) -> LabMap:
     image = ImageOps.exif_transpose(_open_image(path))
     _warn_srgb(path)
+    if image.has_transparency_data:
+        _warn_ignored(path, "the alpha channel is ignored (a map has no transparency)")
     if image.mode in ("I;16", "I;16B", "I;16L", "I"):
         grey = np.asarray(image, dtype=np.float64) / 65535.0
         rgb = np.repeat(np.clip(grey, 0.0, 1.0)[..., None], 3, axis=2)
@@ -232,8 +248,8 @@ def _read_srgb_image(path: Path) -> LabMap:
 
 def _read_channel_image(path: Path) -> np.ndarray:
     """One channel PNG -> (H, W) float64 fraction of full scale in [0, 1]."""
-    if not path.is_file():
-        raise MapFormatError(f"{path}: no such file (channel PNGs come in threes: NAME.L.png, NAME.a.png, NAME.b.png)")
+    require_file(path, "a channel PNG", MapFormatError,
+                 "no such file (channel PNGs come in threes: NAME.L.png, NAME.a.png, NAME.b.png)")
     image = _open_image(path)
     if image.mode in ("I;16", "I;16B", "I;16L", "I"):
         return np.clip(np.asarray(image, dtype=np.float64) / 65535.0, 0.0, 1.0)

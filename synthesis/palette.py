@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, require_file
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 DEFAULT_PALETTE = ASSET_DIR / "palette.npz"
@@ -130,8 +130,7 @@ class Palette:
         :mod:`data_gen.palette_table`, which rebuilds the tables from the layout.
         """
         path = Path(path) if path is not None else DEFAULT_PALETTE
-        if not path.is_file():
-            raise PatternshopError(f"{path}: palette not found (build it with 'python -m data_gen.palette')")
+        require_file(path, "a palette file", missing="palette not found (build it with 'python -m data_gen.palette')")
         try:
             with np.load(path, allow_pickle=False) as data:
                 version = int(data["format_version"])

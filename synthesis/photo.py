@@ -28,16 +28,17 @@ photo's aspect ratio with the long side 1.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from synthesis.errors import PatternshopError, PatternshopWarning
+from synthesis.errors import PatternshopError, PatternshopWarning, require_file
 from synthesis.labmap import AB_RANGE, SRGB_TO_XYZ, LabMap, linear_to_srgb, srgb_to_linear
 
 PathLike = str | os.PathLike
@@ -78,7 +79,10 @@ def check_ab(ab: Sequence[float]) -> AB:
     Raises:
         PatternshopError: not two finite numbers in range.
     """
-    a, b = (float(v) for v in ab)
+    try:
+        a, b = (float(v) for v in ab)
+    except (TypeError, ValueError):
+        raise PatternshopError(f"a, b must be two numbers in [{AB_RANGE[0]:g}, {AB_RANGE[1]:g}]") from None
     if not all(math.isfinite(v) and AB_RANGE[0] <= v <= AB_RANGE[1] for v in (a, b)):
         raise PatternshopError(f"a, b must be finite and in [{AB_RANGE[0]:g}, {AB_RANGE[1]:g}], got {a:g}, {b:g}")
     return a, b
@@ -99,29 +103,39 @@ def parse_label_key(text: str) -> int | tuple[int, int, int]:
 
 
 # --- reading images ----------------------------------------------------------
-def _open(path: PathLike, what: str) -> Image.Image:
-    """Open an image's header (no pixels decoded yet)."""
-    if not os.path.isfile(path):
-        raise PatternshopError(f"{path}: no such file")
+@contextlib.contextmanager
+def _reading(path: PathLike, what: str) -> Iterator[None]:
+    """Turn Pillow's errors inside the block (a truncated or corrupt file) into one error naming the file."""
     try:
-        return Image.open(path)
-    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+        yield
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         raise PatternshopError(f"{path}: not a readable {what} ({exc})") from exc
 
 
-def _oriented_size(image: Image.Image) -> tuple[int, int]:
-    """(width, height) after the EXIF orientation is applied, from the header alone."""
-    orientation = image.getexif().get(_ORIENTATION_TAG, 1)
+def _open(path: PathLike, what: str) -> Image.Image:
+    """Open an image's header (no pixels decoded yet); warn that only the first frame or page of several is read."""
+    require_file(path, f"{'an' if what[0] in 'aeiou' else 'a'} {what} file")
+    with _reading(path, what):
+        image = Image.open(path)
+        frames = getattr(image, "n_frames", 1)
+    if frames > 1:
+        warnings.warn(f"{path}: the {what} has {frames} frames or pages; only the first is read", PatternshopWarning,
+                      stacklevel=3)
+    return image
+
+
+def _oriented_size(image: Image.Image, path: PathLike, what: str) -> tuple[int, int]:
+    """(width, height) after the EXIF orientation is applied, from the header (a PNG's EXIF may need its pixels)."""
+    with _reading(path, what):
+        orientation = image.getexif().get(_ORIENTATION_TAG, 1)
     return image.size[::-1] if orientation in _TRANSPOSED_ORIENTATIONS else image.size
 
 
 def _load(image: Image.Image, path: PathLike, what: str) -> Image.Image:
     """Decode the pixels and apply the EXIF orientation."""
-    try:
+    with _reading(path, what):
         image.load()
         return ImageOps.exif_transpose(image)
-    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
-        raise PatternshopError(f"{path}: not a readable {what} ({exc})") from exc
 
 
 def _convertible(image: Image.Image, path: PathLike, what: str) -> Image.Image:
@@ -265,11 +279,12 @@ def photo_to_map(
 
     # headers first: every size is checked before any pixel is decoded
     source = _open(photo, "image")
-    size = _oriented_size(source)
+    size = _oriented_size(source, photo, "image")
     region_path = labels if labels is not None else mask
-    region = _open(region_path, "label image" if labels is not None else "mask") if region_path is not None else None
-    if region is not None and _oriented_size(region) != size:
-        rw, rh = _oriented_size(region)
+    region_what = "label image" if labels is not None else "mask"
+    region = _open(region_path, region_what) if region_path is not None else None
+    if region is not None and _oriented_size(region, region_path, region_what) != size:
+        rw, rh = _oriented_size(region, region_path, region_what)
         raise PatternshopError(f"{region_path}: {rw}x{rh} px, the photo {size[0]}x{size[1]} px (make it at the photo's size)")
     scale = min(1.0, max_side / max(size))
     out_size = (max(1, round(size[0] * scale)), max(1, round(size[1] * scale)))

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from synthesis.atomic import atomic_path
-from synthesis.errors import PointFileError
+from synthesis.errors import PointFileError, require_file
 
 TEXT_SUFFIXES = (".txt", ".csv", ".xy", ".pts")
 NPY_SUFFIX = ".npy"
@@ -89,8 +89,7 @@ def read_points(path: PathLike, domain: tuple[float, float] | None = None, allow
             the message starts with ``FILE:LINE:`` where a line is to blame.
     """
     path = Path(path)
-    if not path.is_file():
-        raise PointFileError(f"{path}: no such file")
+    require_file(path, "a point file", PointFileError)
     suffix = path.suffix.lower()
     if suffix == NPY_SUFFIX:
         values, rows, file_domain = _parse_npy(path), None, None

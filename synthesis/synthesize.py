@@ -167,6 +167,7 @@ def synthesize(
 
     from synthesis.edgepcf import WindowSampler, find_neighbourhoods
     from synthesis.edgepcf_fast import FastObjective
+    from synthesis.kernels import announce_compilation
     from synthesis.step_fast import momentum_step
     from synthesis.stratified import spatial_order
 
@@ -182,6 +183,7 @@ def synthesize(
     n = point_count(lab_map) if n is None else n
     if n < 2:
         raise PatternshopError(f"need at least 2 points, got {n}")
+    announce_compilation()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     rng = np.random.default_rng(seed)
     palette = palette or load_palette()

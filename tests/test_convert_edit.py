@@ -222,7 +222,7 @@ def test_edit_command_fig1_style(tmp_path, capsys):
     (["--preset", "nonesuch"], "unknown preset 'nonesuch'"),
     (["--rect", "0", "0", "1", "1"], "select where"),
     (["--ab", "0", "0", "--invert"], "--invert needs"),
-    (["--ab", "0", "0", "--region", "missing.png"], "not a readable mask image"),
+    (["--ab", "0", "0", "--region", "missing.png"], "missing.png: no such file"),
 ])
 def test_edit_errors_are_one_line(extra, message, tmp_path, capsys):
     source = tmp_path / "in.tif"
