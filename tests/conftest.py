@@ -11,7 +11,7 @@ from pathlib import Path  # noqa: E402 - after the thread variables
 
 import pytest  # noqa: E402
 
-from helpers import random_map, run_cli  # noqa: E402, F401 - shared helpers live in tests/helpers.py (run_cli: for older imports)
+from helpers import random_map  # noqa: E402 - shared helpers live in tests/helpers.py (tests import them from there)
 from synthesis.mapio import write_tiff  # noqa: E402
 
 

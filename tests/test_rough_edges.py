@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
-from conftest import random_map, run_cli
+from helpers import random_map, run_cli
 from PIL import Image
 
 from synthesis.errors import PatternshopError, PatternshopWarning

@@ -1,0 +1,124 @@
+"""The shipped model's headline figures on a reduced evaluation (about 25 s on one thread): a retrained
+model that regresses fails here, and so does a model whose recorded evaluation (default.eval.json) is stale.
+
+The reduced evaluation reuses ``python -m patternshop_nn.evaluate``'s machinery (:mod:`patternshop_nn.evaluate`,
+:mod:`patternshop_nn.ood`) on:
+
+* the first 4 held-out procedural pairs of the recorded evaluation (seed 1000, synthesiser only), scored by
+  :func:`patternshop_nn.evaluate.score` against the best KDE and the palette decoding;
+* 8 held-out pairs of other methods' patterns (seed 1000, ``other_methods.share=1.0``: no synthesis), the
+  network's density and latent MAE;
+* Poisson, jittered-grid and Thomas patterns at density 1.0 read by the network alone (``ood.infer``
+  without fill: one run, no calibration), the share of pixels whose nearest preset is the right one.
+
+Measured with the shipped patternshop-procedural-v5 (ONNX Runtime, one thread):
+
+==========================================  ========  =========  =====================================
+figure                                      measured  bound      earlier models / degraded copies
+==========================================  ========  =========  =====================================
+procedural density MAE (KDE 0.0994)         0.0660    <= 0.0713  v2 0.0783; weights x (1 + 0.1 N) 0.0735
+procedural latent MAE (palette 0.1442)      0.1298    <= 0.1402  v2 0.1276 (not a discriminating figure)
+other methods: density MAE                  0.0463    <= 0.0500  v2 0.0599; weights x (1 + 0.05 N) 0.0512
+other methods: latent MAE                   0.0093    <= 0.0125  v2-v4 0.0075-0.0112; x (1 + 0.05 N) 0.0151
+stationary, network alone: right preset     >= 0.999  >= 0.95    jitter: v4 0.755, v3 0.016, v2 0.053
+==========================================  ========  =========  =====================================
+
+The MAE bounds are 8 % above the measurement (the other-method latent MAE, a small figure, 35 %: it takes
+every earlier model's); v3 and v4 score better on the pairs (stage 5 cost 4.5 % in density, MODEL_CARD.md)
+and fail only on the jittered grid. Weights x (1 + 0.02 N) pass (other-method latent 0.0104). The per-pair
+figures of the 4 procedural pairs agree with default.eval.json's to 0.0012 (density) and 0.0014 (latent),
+asserted to 0.003 and 0.004 (v4's differ by 0.0035 and 0.0083); the pairs have changed a little since it
+was recorded (the synthesiser). v2-v4 are the models of commits ab18275, 41d61b6 and 369e364
+(``git show COMMIT:patternshop_nn/assets/default.onnx``), measured with :func:`headline` on the same pairs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from data_gen.shards import load_pairs
+from export.runtime import DEFAULT_MODEL, OnnxModel
+from patternshop_nn import ood
+from patternshop_nn.baselines import density_mae, latent_mae
+from patternshop_nn.evaluate import make_pairs, predict_pairs, score
+from synthesis.conventions import POINTS_PER_INK
+from synthesis.palette import load_palette
+from synthesis.points import PointSet
+
+HELD_OUT_SEED = 1000  # python -m patternshop_nn.evaluate's default, and the recorded evaluation's
+PROCEDURAL_PAIRS, OTHER_PAIRS = 4, 8
+PROCESSES = ("poisson", "jitter", "thomas")  # at density 1.0; Poisson-disk and Lloyd cost 26 s and 6 s to make
+BOUNDS = {  # figure: (bound, "max" or "min"); measurements in the module docstring
+    "procedural_density_mae": (0.0713, "max"),
+    "procedural_latent_mae": (0.1402, "max"),
+    "other_density_mae": (0.0500, "max"),
+    "other_latent_mae": (0.0125, "max"),
+    **{f"right_preset_{process}": (0.95, "min") for process in PROCESSES},
+}
+RECORDED = json.loads((DEFAULT_MODEL.parent / "default.eval.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def held_out(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """(procedural pairs, other-method pairs) as the evaluation makes them, at the shipped model's scale."""
+    root = tmp_path_factory.mktemp("held_out")
+    dataset = ["dataset=procedural", f"synthesis.points_per_ink={OnnxModel().points_per_ink}"]
+    return (make_pairs(root / "procedural", dataset, PROCEDURAL_PAIRS, HELD_OUT_SEED, 1),
+            make_pairs(root / "other", [*dataset, "other_methods.share=1.0"], OTHER_PAIRS, HELD_OUT_SEED, 1))
+
+
+def headline(model: OnnxModel, held_out: tuple[Path, Path]) -> dict:
+    """The reduced evaluation's figures (see the module docstring)."""
+    procedural = score(model, held_out[0])
+    other = load_pairs(held_out[1])
+    predicted, truth = predict_pairs(model, other), other.target.transpose(0, 3, 1, 2).astype(np.float32) / 255.0
+    figures = {"procedural": procedural,
+               "procedural_density_mae": procedural["model_density_mae"], "procedural_latent_mae": procedural["model_latent_mae"],
+               "other_density_mae": density_mae(predicted, truth), "other_latent_mae": latent_mae(predicted, truth)}
+    palette = load_palette()
+    for process in PROCESSES:
+        make, preset = ood.STATIONARY[process]
+        lab_map = ood.infer(PointSet(make(POINTS_PER_INK, HELD_OUT_SEED)), model, fill=False).lab_map
+        figures[f"right_preset_{process}"] = ood.nearest_preset_share(lab_map, palette, preset)
+    return figures
+
+
+def shortfalls(figures: dict) -> list[str]:
+    """The figures past their bounds, as 'figure measured (bound)'."""
+    return [f"{name} {figures[name]:.4f} ({'<=' if side == 'max' else '>='} {bound})" for name, (bound, side) in BOUNDS.items()
+            if (figures[name] > bound if side == "max" else figures[name] < bound)]
+
+
+def test_shipped_model_keeps_its_headline_figures(held_out: tuple[Path, Path]) -> None:
+    figures = headline(OnnxModel(threads=1), held_out)
+    assert shortfalls(figures) == []
+    procedural = figures["procedural"]
+    # better than both baselines on the same pairs (recorded on 24 pairs: 37 % below KDE, 22 % below the palette)
+    assert procedural["density_gain_vs_kde"] > 0.25 and procedural["latent_gain_vs_baseline"] > 0
+    # the recorded evaluation is this model's: its first pairs score what default.eval.json says
+    recorded = RECORDED["procedural"]
+    np.testing.assert_allclose(procedural["per_pair_model_density_mae"], recorded["per_pair_model_density_mae"][:PROCEDURAL_PAIRS],
+                               atol=0.003)
+    np.testing.assert_allclose(procedural["per_pair_model_latent_mae"], recorded["per_pair_model_latent_mae"][:PROCEDURAL_PAIRS],
+                               atol=0.004)
+
+
+def test_a_degraded_model_fails_the_headline_figures(held_out: tuple[Path, Path], tmp_path: Path) -> None:
+    """The shipped weights each multiplied by (1 + 0.05 N(0, 1)): measured other-method density 0.0512, latent 0.0151."""
+    import onnx
+    from onnx import numpy_helper
+
+    graph = onnx.load(str(DEFAULT_MODEL))
+    rng = np.random.default_rng(0)
+    for initializer in graph.graph.initializer:
+        weights = numpy_helper.to_array(initializer)
+        if weights.dtype.kind == "f" and weights.size > 1:
+            noisy = weights * (1 + 0.05 * rng.standard_normal(weights.shape))
+            initializer.CopyFrom(numpy_helper.from_array(noisy.astype(weights.dtype), initializer.name))
+    onnx.save(graph, str(tmp_path / "degraded.onnx"))
+    failed = {entry.split()[0] for entry in shortfalls(headline(OnnxModel(tmp_path / "degraded.onnx", threads=1), held_out))}
+    assert {"other_density_mae", "other_latent_mae"} <= failed
