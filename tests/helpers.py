@@ -33,3 +33,13 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, s
         status = int(exc.code or 0)
     out, err = capsys.readouterr()
     return status, out, err
+
+
+def one_line_error(err: str, *fragments: str) -> str:
+    """The single stderr line of a refused command (warnings aside), checked for ``fragments``."""
+    lines = [line for line in err.strip().splitlines() if "warning:" not in line]
+    assert len(lines) == 1, err
+    assert "internal error" not in lines[0] and "unrecognized arguments" not in lines[0], lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+    return lines[0]

@@ -15,40 +15,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import random_map, run_cli
+from helpers import one_line_error, random_map, run_cli
 from PIL import Image
 
 from synthesis.atomic import atomic_write_text
 from synthesis.labmap import LabMap
-from synthesis.mapio import write_tiff
-from synthesis.points import PointSet, write_points
 
 ROOT = Path(__file__).resolve().parent.parent
 LOGO_MAP = ROOT / "examples" / "logo.tif"
 
-
-def one_line_error(err: str, *fragments: str) -> str:
-    """The single stderr line of a refused command, checked for ``fragments``."""
-    lines = [line for line in err.strip().splitlines() if "warning:" not in line]
-    assert len(lines) == 1, err
-    assert "internal error" not in lines[0] and "unrecognized arguments" not in lines[0], lines[0]
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
-    return lines[0]
-
-
-@pytest.fixture
-def small_map(tmp_path: Path) -> Path:
-    path = tmp_path / "small.tif"
-    write_tiff(random_map(24, 32), path)
-    return path
-
-
-@pytest.fixture
-def points_file(tmp_path: Path) -> Path:
-    path = tmp_path / "points.txt"
-    write_points(PointSet(np.random.default_rng(0).random((500, 2))), path)
-    return path
 
 
 @pytest.fixture

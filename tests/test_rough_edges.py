@@ -22,38 +22,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
-from helpers import random_map, run_cli
+from helpers import one_line_error, random_map, run_cli
 from PIL import Image
 
 from synthesis.errors import PatternshopError, PatternshopWarning
-from synthesis.mapio import read_map, write_tiff
+from synthesis.mapio import read_map
 from synthesis.points import PointSet, read_points, write_points
 
 ROOT = Path(__file__).resolve().parent.parent
 LOGO_MAP = ROOT / "examples" / "logo.tif"
 PATTERNSHOP = [sys.executable, "-m", "patternshop"]
 
-
-def error_line(err: str) -> str:
-    """The one stderr line of a refused command (warnings aside)."""
-    lines = [line for line in err.strip().splitlines() if "warning:" not in line]
-    assert len(lines) == 1, err
-    assert "internal error" not in lines[0], lines[0]
-    return lines[0]
-
-
-@pytest.fixture
-def small_map(tmp_path: Path) -> Path:
-    path = tmp_path / "small.tif"
-    write_tiff(random_map(24, 32), path)
-    return path
-
-
-@pytest.fixture
-def points_file(tmp_path: Path) -> Path:
-    path = tmp_path / "points.txt"
-    write_points(PointSet(np.random.default_rng(0).random((500, 2))), path)
-    return path
 
 
 def _takes_files(folder: Path) -> bool:
@@ -102,7 +81,7 @@ def test_unwritable_output_folder_is_refused_before_work_naming_the_output(
     argv = [a.format(map=small_map, points=points_file, photo=photo, out=unwritable_folder, tmp=tmp_path) for a in command]
     status, _, err = run_cli(argv, capsys)
     assert status == 2
-    line = error_line(err)
+    line = one_line_error(err)
     target = next(a for a in argv if a.startswith(str(unwritable_folder)))
     assert f"{target}: cannot write into folder {unwritable_folder}" in line and ".tmp" not in line, line
 
@@ -171,7 +150,7 @@ def test_infer_refuses_a_degenerate_pattern_with_analyzes_message(tmp_path, caps
     for argv in (["analyze", str(path)], ["infer", str(path), str(tmp_path / "m.tif")]):
         status, _, err = run_cli(argv, capsys)
         assert status == 2
-        messages.append(error_line(err).split(": error: ", 1)[1])
+        messages.append(one_line_error(err).split(": error: ", 1)[1])
     assert messages[0] == messages[1] and "degenerate" in messages[0]
     assert not (tmp_path / "m.tif").exists()
 
@@ -202,7 +181,7 @@ def test_a_folder_given_as_a_file_is_named_a_folder(command, what, small_map, po
     argv = [a.format(dir=folder, tmp=tmp_path, photo=photo, points=points_file, map=small_map) for a in command]
     status, _, err = run_cli(argv, capsys)
     assert status == 2
-    assert f"{folder}: is a folder, not {what}" in error_line(err)
+    assert f"{folder}: is a folder, not {what}" in one_line_error(err)
 
 
 # --- 5. plain numbers ---------------------------------------------------------------------------------------------
@@ -211,7 +190,7 @@ def test_out_of_range_ab_is_reported_with_plain_numbers_and_the_range(small_map,
 
     status, _, err = run_cli(["edit", str(small_map), str(tmp_path / "m.tif"), "--ab", "500", "-900"], capsys)
     assert status == 2
-    line = error_line(err)
+    line = one_line_error(err)
     assert "[-128, 127]" in line and "500, -900" in line and "np." not in line
     lab_map = random_map(4, 4)
     for call in (lambda: set_correlation(lab_map, (np.float64(500), np.float64(-900))),
@@ -229,7 +208,7 @@ def test_a_truncated_png_is_named_in_the_error(command, tmp_path, capsys):
     cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
     status, _, err = run_cli([a.format(cut=cut, tmp=tmp_path) for a in command], capsys)
     assert status == 2
-    line = error_line(err)
+    line = one_line_error(err)
     assert f"{cut}: not a readable" in line and "truncated" in line, line
 
 
