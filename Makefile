@@ -13,7 +13,7 @@ PS := $(BIN)/patternshop
 # slows synthesis tenfold or more; on an idle machine `make demo DEMO_THREADS=2` may be faster.
 DEMO_THREADS ?= 1
 
-.PHONY: setup demo test bench examples clean
+.PHONY: setup browser demo test bench examples clean
 
 setup: $(STAMP)
 
@@ -34,8 +34,18 @@ demo: setup
 	@echo "demo outputs: out/demo/ (points -> map -> edit -> points: contact_sheet.png, summary.json, ...);"
 	@echo "  out/: logo.{txt,png,svg}, gradient.{txt,png,svg} (with dot sizes), reports (*.json), palette.png"
 
-test: setup
+test: setup browser
 	$(BIN)/python -m pytest -q
+
+# The studio's browser tests need Debian's chromium and chromium-driver: installed here when we are root with
+# apt-get; otherwise those tests are skipped with a message (under CI=true they fail instead).
+browser:
+	@if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "installing chromium and chromium-driver for the studio's browser tests"; \
+	  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium chromium-driver >/dev/null; } \
+	    || echo "could not install chromium: the studio's browser tests will be skipped"; \
+	else echo "chromium is not installed (apt-get install chromium chromium-driver as root): the studio's browser tests will be skipped"; fi
 
 bench: setup
 	$(BIN)/python bench/run.py

@@ -283,7 +283,7 @@ def test_settings(client):
     response = client.post("/api/settings", json={"seed": 7, "points": 500, "ab": [-10, 20], "tool": "correlation"})
     assert response.status_code == 200 and response.json()["seed"] == 7
     assert client.get("/api/settings").json()["ab"] == [-10, 20]
-    for bad in ({"seed": -1}, {"points": 1}, {"tool": "lasso"}, {"nonsense": 1}, {"ab": [0]}):
+    for bad in ({"seed": -1}, {"points": 1}, {"tool": "spray"}, {"nonsense": 1}, {"ab": [0]}):
         response = client.post("/api/settings", json=bad)
         assert response.status_code == 400, bad
     assert client.get("/api/state").json()["settings"]["points"] == 500
@@ -307,6 +307,12 @@ def test_synthesize_status_points_and_progress(opened):
     unchanged = opened.get("/api/points.json", params={"since": frame["frame"]}).json()
     assert unchanged["points"] is None and unchanged["frame"] == frame["frame"]
     assert opened.get("/api/state").json()["points"]["n"] == 300
+    binary = opened.get("/api/points.bin", params={"since": 0})
+    meta = json.loads(binary.headers["X-Points"])
+    assert meta["final"] and meta["n"] == 300 and meta["frame"] == frame["frame"] and "300 points" in meta["status"]["text"]
+    np.testing.assert_allclose(np.frombuffer(binary.content, "<f4").reshape(-1, 2), xy, atol=1e-5)
+    nothing = opened.get("/api/points.bin", params={"since": frame["frame"]})
+    assert nothing.status_code == 204 and not nothing.content and json.loads(nothing.headers["X-Points"])["frame"] == frame["frame"]
     assert opened.get("/api/points.json", params={"since": "x"}).status_code == 400
 
 
@@ -419,6 +425,17 @@ def _call(url: str, path: str, body: dict | None = None) -> dict:
             time.sleep(0.05)
 
 
+def _call_once(url: str, path: str, body: dict) -> None:
+    """One try, no answer expected (the server is about to die)."""
+    base, token = url.split("/?token=")
+    request = urllib.request.Request(f"{base}{path}", data=json.dumps(body).encode(), method="POST",
+                                     headers={"X-Patternshop-Token": token, "Content-Type": "application/json"})
+    try:
+        urllib.request.urlopen(request, timeout=20).read()
+    except (OSError, urllib.error.URLError):
+        pass
+
+
 def test_kill_9_keeps_every_acknowledged_edit(tmp_path):
     project = tmp_path / "project"
     process, url = _start_server(project, str(ROOT / "examples" / "logo.tif"))
@@ -430,7 +447,7 @@ def test_kill_9_keeps_every_acknowledged_edit(tmp_path):
             assert _call(url, "/api/edit", stroke)["changed"]  # acknowledged
             expected.append(apply_edit(expected[-1], stroke).lab)
         # the fourth edit is in flight when the server dies
-        threading.Thread(target=lambda: _call(url, "/api/edit", strokes[3]), daemon=True).start()
+        threading.Thread(target=_call_once, args=(url, "/api/edit", strokes[3]), daemon=True).start()
         time.sleep(0.01)
         process.send_signal(signal.SIGKILL)
         process.wait(10)

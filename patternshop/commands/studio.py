@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from patternshop.commands import check_map_input, positive_float, positive_int
+from patternshop.commands import check_map_input, check_point_file, positive_float, positive_int
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -32,8 +32,11 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         "and the settings are saved in the project folder after every edit, so a reload or a restart reopens "
         "where you were.",
     )
-    parser.add_argument("file", nargs="?", help="a map to open (CIELAB TIFF or sRGB PNG/JPEG); without it the "
+    parser.add_argument("file", nargs="?", help="a map to open (CIELAB TIFF or sRGB PNG/JPEG), a point file (.txt, "
+                        ".csv, .npy: its map is inferred by the network) or, with --photo, a photo; without it the "
                         "project's last map, or a blank map")
+    parser.add_argument("--photo", action="store_true", help="FILE is a photo: open the map whose stipple "
+                        "reproduces its tone (as 'patternshop from-image' with its defaults, blue noise)")
     parser.add_argument("--port", type=_port, default=8765, help="port to listen on (default 8765, or the next free "
                         "one; 0: any free port)")
     parser.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1; anything "
@@ -59,10 +62,18 @@ def run_studio(args: argparse.Namespace) -> None:
                       PatternshopWarning, stacklevel=1)
     lab = None
     if args.file is not None:
-        from synthesis.mapio import read_map
+        from patternshop import api
+        from synthesis.points import NPY_SUFFIX, TEXT_SUFFIXES
 
-        check_map_input(args, args.file)
-        lab = read_map(args.file).lab
+        if args.photo:
+            lab = api.from_image(args.file).lab
+        elif Path(args.file).suffix.lower() in TEXT_SUFFIXES + (NPY_SUFFIX,):
+            check_point_file(args, args.file)
+            print(f"inferring the map of {args.file} with the network ...", flush=True)
+            lab = api.infer(args.file).lab_map.lab
+        else:
+            check_map_input(args, args.file)
+            lab = api.read_map(args.file).lab
     project = Project(Path(args.project) if args.project else default_project_dir(), history_limit=args.history)
     try:
         if lab is not None:

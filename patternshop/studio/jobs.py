@@ -1,0 +1,226 @@
+"""Synthesis off the event loop: one worker thread at a time, cancellable, publishing points as they form.
+
+:class:`Synthesizer` runs :func:`patternshop.api.synthesize` on a snapshot of the project's map. Its
+per-iteration callback publishes a *frame* (a copy of the current positions) at the start (the
+density-matched start, a usable preview), then at most every :data:`FRAME_INTERVAL` seconds, and the final
+points; each frame has a number that only grows, so the page asks for "frames since F". Starting another
+synthesis or editing the map cancels the running one at its next iteration.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from patternshop.studio.project import Project
+from synthesis.errors import PatternshopError
+from synthesis.resources import synthesis_bytes
+
+FRAME_INTERVAL = 0.1  # seconds between published frames while a synthesis runs
+GIGABYTE = 1e9
+
+
+class _Cancelled(Exception):
+    """Raised inside the synthesis callback to stop a cancelled job."""
+
+
+@dataclass
+class Job:
+    """One synthesis run."""
+
+    id: int
+    version: int  # the map version it synthesises
+    n: int
+    seed: int
+    total: int
+    cancel: threading.Event = field(default_factory=threading.Event)
+    state: str = "running"  # running, done, cancelled, error
+    iteration: int = 0
+    message: str = ""
+    started: float = field(default_factory=time.perf_counter)
+    seconds: float = 0.0
+    first_points_seconds: float | None = None
+
+
+@dataclass
+class Frame:
+    number: int
+    job: int
+    version: int
+    iteration: int
+    total: int
+    final: bool
+    xy: np.ndarray
+    domain: tuple[float, float]
+
+
+class Synthesizer:
+    """Runs syntheses of a project's map in worker threads (one at a time)."""
+
+    def __init__(self, project: Project, max_memory_gb: float = 4.0) -> None:
+        self.project = project
+        self.max_memory_gb = max_memory_gb
+        self.lock = threading.Lock()
+        self.job: Job | None = None
+        self.frame: Frame | None = None
+        self._ids = itertools.count(1)
+        self._frames = itertools.count(1)
+        self._threads: list[threading.Thread] = []
+        self._load_saved_points()
+
+    def _load_saved_points(self) -> None:
+        path = self.project.points_path()
+        if path is None or not path.exists():
+            return
+        from synthesis.points import read_points
+
+        try:
+            points = read_points(path)
+        except PatternshopError:
+            return
+        info = self.project.state["points"]
+        self.frame = Frame(next(self._frames), 0, int(info.get("version", -1)), int(info.get("iterations", 0)),
+                           int(info.get("iterations", 0)), True, points.xy, points.domain)
+
+    # --- control -----------------------------------------------------------------------------------------
+    def start(self, points: int | None = None, seed: int | None = None, iterations: int | None = None) -> dict[str, Any]:
+        """Cancel any running synthesis and start one of the current map; returns :meth:`status`.
+
+        ``points``, ``seed`` default to the project's settings (points: ``points_per_ink`` x mean density).
+
+        Raises:
+            PatternshopError: no map, a white map, a bad count or seed, or a run over ``max_memory_gb``.
+        """
+        from synthesis.labmap import LabMap
+        from synthesis.synthesize import SCHEDULES, point_count
+
+        lab, version = self.project.current()
+        settings = self.project.settings
+        lab_map = LabMap(lab)
+        if points is None:
+            points = settings["points"]
+        if points is None:
+            points = point_count(lab_map, settings["points_per_ink"])
+        if isinstance(points, bool) or not isinstance(points, int) or points < 2:
+            raise PatternshopError(f"the point count must be an integer >= 2, got {points!r}")
+        seed = settings["seed"] if seed is None else seed
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= 2**32 - 1:
+            raise PatternshopError(f"the seed must be an integer from 0 to {2**32 - 1}, got {seed!r}")
+        if iterations is not None and (isinstance(iterations, bool) or not isinstance(iterations, int) or not 0 <= iterations <= 100_000):
+            raise PatternshopError(f"iterations must be an integer from 0 to 100000, got {iterations!r}")
+        needed = synthesis_bytes(lab.shape[0] * lab.shape[1], points)
+        if needed > self.max_memory_gb * GIGABYTE:
+            raise PatternshopError(f"synthesising {points:,} points needs about {needed / GIGABYTE:.3g} GB of memory, over "
+                                   f"the limit of {self.max_memory_gb:g} GB (fewer points, or restart the studio "
+                                   "with a higher --max-memory-gb)")
+        total = iterations if iterations is not None else SCHEDULES["fast"].iterations
+        with self.lock:
+            if self.job is not None and self.job.state == "running":
+                self.job.cancel.set()
+                self.job.state, self.job.message = "cancelled", "replaced by a new synthesis"
+            job = Job(next(self._ids), version, points, seed, total)
+            self.job = job
+        thread = threading.Thread(target=self._run, args=(job, lab_map, iterations), name=f"synthesis-{job.id}", daemon=True)
+        self._threads = [t for t in self._threads if t.is_alive()] + [thread]
+        thread.start()
+        return self.status()
+
+    def cancel(self, reason: str = "cancelled") -> bool:
+        """Stop the running synthesis (at its next iteration); True when one was running."""
+        with self.lock:
+            job = self.job
+            if job is None or job.state != "running":
+                return False
+            job.cancel.set()
+            job.state, job.message = "cancelled", reason
+            return True
+
+    def wait(self, timeout: float = 60.0) -> None:
+        """Wait until no worker thread runs (tests, shutdown)."""
+        deadline = time.monotonic() + timeout
+        for thread in list(self._threads):
+            thread.join(max(0.0, deadline - time.monotonic()))
+
+    # --- the worker --------------------------------------------------------------------------------------
+    def _publish(self, job: Job, xy: np.ndarray, iteration: int, final: bool, domain: tuple[float, float]) -> None:
+        with self.lock:
+            if job.cancel.is_set():
+                return
+            self.frame = Frame(next(self._frames), job.id, job.version, iteration, job.total, final, xy, domain)
+            job.iteration = iteration
+            if job.first_points_seconds is None:
+                job.first_points_seconds = time.perf_counter() - job.started
+
+    def _run(self, job: Job, lab_map: Any, iterations: int | None) -> None:
+        from patternshop import api
+
+        last = [0.0]
+        domain = lab_map.domain
+
+        def progress(done: int, total: int, xy: np.ndarray) -> None:
+            if job.cancel.is_set():
+                raise _Cancelled
+            job.iteration = done
+            now = time.perf_counter()
+            if done == 0 or now - last[0] >= FRAME_INTERVAL:
+                last[0] = now
+                self._publish(job, xy.copy(), done, False, domain)
+
+        try:
+            result = api.synthesize(lab_map, points=job.n, seed=job.seed, iterations=iterations, progress=progress)
+        except _Cancelled:
+            return
+        except PatternshopError as exc:
+            self._fail(job, " ".join(str(exc).split()))
+            return
+        except MemoryError:
+            self._fail(job, "out of memory: use fewer points")
+            return
+        except Exception as exc:  # a bug: keep the studio usable, say what happened
+            self._fail(job, f"internal error: {type(exc).__name__}: {' '.join(str(exc).split())}")
+            return
+        if job.cancel.is_set():
+            return
+        seconds = time.perf_counter() - job.started
+        try:
+            self.project.save_points(result.points, job.version, {"seed": job.seed, "iterations": result.iterations,
+                                                                  "seconds": round(seconds, 3)})
+        except (PatternshopError, OSError) as exc:
+            self._fail(job, f"points not saved: {exc}")
+            return
+        self._publish(job, result.points.xy, result.iterations, True, result.points.domain)
+        with self.lock:
+            if not job.cancel.is_set():
+                job.state, job.seconds = "done", seconds
+
+    def _fail(self, job: Job, message: str) -> None:
+        with self.lock:
+            if not job.cancel.is_set():
+                job.state, job.message = "error", message
+
+    # --- queries -----------------------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """The running or last job: state, iteration, total, n, seconds, message."""
+        with self.lock:
+            job = self.job
+            if job is None:
+                return {"state": "idle"}
+            return {"state": job.state, "job": job.id, "version": job.version, "n": job.n, "seed": job.seed,
+                    "iteration": job.iteration, "total": job.total, "message": job.message,
+                    "seconds": round(job.seconds if job.state == "done" else time.perf_counter() - job.started, 3),
+                    "first_points_seconds": None if job.first_points_seconds is None else round(job.first_points_seconds, 3)}
+
+    def frame_since(self, since: int) -> Frame | None:
+        """The newest frame if it is newer than frame number ``since``, else None."""
+        with self.lock:
+            frame = self.frame
+        return frame if frame is not None and frame.number > since else None
+
+    def latest_frame(self) -> Frame | None:
+        with self.lock:
+            return self.frame
