@@ -24,13 +24,12 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from data_gen.executor import Executor, Lost
-from synthesis.atomic import atomic_path
+from data_gen.storage import as_path, write_atomic, write_text_atomic
 from synthesis.errors import PatternshopError
 
 
@@ -115,7 +114,7 @@ def build_corpus(config: CorpusConfig, cache_dir: str | os.PathLike, executor: E
     ``seconds (N,)`` (worker time per exemplar, whenever it was computed) and
     ``computed_now`` (how many exemplars this call computed rather than read).
     """
-    folder = Path(cache_dir) / f"corpus-{config.key()}"
+    folder = as_path(cache_dir) / f"corpus-{config.key()}"
     chunks = [list(range(start, min(start + config.chunk, config.exemplars))) for start in range(0, config.exemplars, config.chunk)]
     return cached_chunks(folder, asdict(config), functools.partial(_make_chunk, config), chunks, executor, "corpus")
 
@@ -126,18 +125,19 @@ def _indexed(make_chunk: Callable[[list], dict[str, np.ndarray]], numbered: tupl
     return number, make_chunk(items)
 
 
-def cached_chunks(folder: Path, description: dict, make_chunk: Callable[[list], dict[str, np.ndarray]], chunks: list[list],
+def cached_chunks(folder: str | os.PathLike, description: dict, make_chunk: Callable[[list], dict[str, np.ndarray]], chunks: list[list],
                   executor: Executor, label: str) -> dict[str, np.ndarray]:
     """Concatenated results of ``make_chunk(items)`` over ``chunks``, each chunk cached as ``folder/chunk-NNNN.npz``.
 
     Missing chunks are computed on ``executor`` (:mod:`data_gen.executor`; locally in spawned processes even for
     one worker; ``make_chunk`` must be picklable) and written atomically by this process as they come back, so an
     interrupted run resumes. A chunk lost with its Dask workers stops the run (:class:`PatternshopError`).
-    ``description`` is written to ``folder/config.json``. The result also holds
-    ``computed_now``: how many items this call computed rather than read.
+    ``folder`` may be an fsspec URL (:mod:`data_gen.storage`). ``description`` is written to ``folder/config.json``.
+    The result also holds ``computed_now``: how many items this call computed rather than read.
     """
+    folder = as_path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "config.json").write_text(json.dumps(description, indent=2, default=str))
+    write_text_atomic(folder / "config.json", json.dumps(description, indent=2, default=str))
     paths = [folder / f"chunk-{number:04d}.npz" for number in range(len(chunks))]
     missing = [(number, items) for number, items in enumerate(chunks) if not paths[number].exists()]
     total = sum(len(items) for items in chunks)
@@ -147,11 +147,12 @@ def cached_chunks(folder: Path, description: dict, make_chunk: Callable[[list], 
             if isinstance(outcome, Lost):
                 raise PatternshopError(f"{label} chunk {outcome.task[0]} lost with its workers: {outcome.error}")
             number, result = outcome
-            with atomic_path(paths[number]) as tmp:
-                with open(tmp, "wb") as handle:
-                    np.savez(handle, **result)
+            write_atomic(paths[number], functools.partial(np.savez, **result))
             progress.update(len(chunks[number]))
-    parts = [dict(np.load(path)) for path in paths]
+    parts = []
+    for path in paths:
+        with path.open("rb") as handle, np.load(handle) as data:
+            parts.append(dict(data))
     corpus = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
     corpus["computed_now"] = np.int64(total - done)
     return corpus

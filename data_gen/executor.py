@@ -4,8 +4,8 @@
   machine (no forked torch, numba or ONNX Runtime thread state), each started
   once with the caller's initializer; ``workers <= 1`` runs in this process.
   Workers ignore Ctrl+C: the parent terminates them at once on any exception,
-  Ctrl+C included. A worker killed from outside loses its task (the pool
-  cannot tell): use ``dask`` where workers may die.
+  Ctrl+C included. A worker killed from outside (out of memory) stops the
+  run with an error (rerun to resume): use ``dask`` where workers may die.
 * ``dask``: the workers of a Dask distributed cluster, reached through its
   scheduler's address (``tcp://host:8786``), or of a ``LocalCluster`` of
   ``workers`` processes started for the run when no address is given. Tasks
@@ -37,6 +37,9 @@ from dataclasses import dataclass
 from synthesis.errors import PatternshopError
 
 LOCAL, DASK = "local", "dask"
+# Scheduler settings of a LocalCluster started here (a running scheduler: set them in its environment,
+# docs/distributed.md): a worker holds only the tasks it runs, so that its death counts against those alone
+SCHEDULER_CONFIG = {"distributed.scheduler.worker-saturation": 1.0}
 
 
 @dataclass(frozen=True)
@@ -98,26 +101,29 @@ class Executor:
             yield from _pool_map(function, tasks, max(1, workers), window or 2 * workers, initializer, initargs)
 
     def _dask_map(self, function: Callable, tasks: Sequence, initializer: Callable | None, initargs: tuple) -> Iterator:
+        import dask
         from distributed import Client, LocalCluster, as_completed
         from distributed.scheduler import KilledWorker
 
         cluster = None
         try:
             if self.scheduler is None:
-                cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                       silence_logs=logging.ERROR, scheduler_kwargs={"allowed_failures": self.retries})
+                with dask.config.set(SCHEDULER_CONFIG):
+                    cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                           silence_logs=logging.ERROR, scheduler_kwargs={"allowed_failures": self.retries})
             client = Client(cluster if cluster is not None else self.scheduler, set_as_default=False)
         except OSError as exc:  # unreachable or refused scheduler: one line, like other user errors
             if cluster is not None:
                 cluster.close()
             raise PatternshopError(f"cannot reach the Dask scheduler {self.scheduler}: {' '.join(str(exc).split())}") from exc
-        call = _Initialised(function, initializer, initargs)
-        futures = client.map(call, tasks, retries=self.retries, pure=False)
-        task_of = {future.key: task for future, task in zip(futures, tasks)}
+        futures: list = []
         try:
+            futures = client.map(_Initialised(function, initializer, initargs), tasks, retries=self.retries, pure=False)
+            task_of = {future.key: task for future, task in zip(futures, tasks)}
             for future in as_completed(futures, loop=client.loop):
                 if future.status == "error" and isinstance(future.exception(), KilledWorker):
-                    yield Lost(task_of[future.key], " ".join(str(future.exception()).split()))
+                    reason = " ".join(str(future.exception()).split()).split(" Inspecting worker logs")[0]  # less the advice
+                    yield Lost(task_of[future.key], reason)
                 else:
                     yield future.result()  # raises the task's exception after its retries
                 future.release()
@@ -135,7 +141,10 @@ class _Initialised:
     _lock = threading.Lock()
 
     def __init__(self, function: Callable, initializer: Callable | None, initargs: tuple) -> None:
+        from dask.utils import funcname
+
         self.function, self.initializer, self.initargs = function, initializer, initargs
+        self.__name__ = funcname(function)  # Dask names the tasks after it
 
     def __call__(self, task: object) -> object:
         if self.initializer is not None:
@@ -158,11 +167,26 @@ def _start_worker(initializer: Callable | None, initargs: tuple) -> None:
         initializer(*initargs)
 
 
+def _next_result(done: queue.SimpleQueue, processes: list) -> object:
+    """The next result a pool worker put in ``done``; a dead worker (killed, out of memory) stops the run instead of
+    leaving it waiting forever for a task that the pool lost."""
+    while True:
+        try:
+            return done.get(timeout=1.0)
+        except queue.Empty:
+            dead = [process.exitcode for process in processes if process.exitcode is not None]
+            if dead:
+                raise PatternshopError(f"a worker process died (exit code {dead[0]}: killed, or out of memory?); "
+                                       "rerun to resume, or use executor=dask, which retries its items") from None
+
+
 def _pool_map(function: Callable, tasks: Sequence, workers: int, window: int, initializer: Callable | None,
               initargs: tuple) -> Iterator:
     """The local back end: ``workers`` spawned processes, at most ``window`` tasks pending; terminated on any exception."""
     done: queue.SimpleQueue = queue.SimpleQueue()
+    others = set(multiprocessing.active_children())
     pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_start_worker, initargs=(initializer, initargs))
+    processes = [process for process in multiprocessing.active_children() if process not in others]  # the pool's workers
     try:
         pending = 0
         for task in itertools.chain(tasks, [None] * window):
@@ -170,7 +194,7 @@ def _pool_map(function: Callable, tasks: Sequence, workers: int, window: int, in
                 pool.apply_async(function, (task,), callback=done.put, error_callback=done.put)
                 pending += 1
             while pending and (pending >= window or task is None):
-                result = done.get()
+                result = _next_result(done, processes)
                 pending -= 1
                 if isinstance(result, BaseException):
                     raise result

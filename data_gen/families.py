@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from data_gen.executor import Executor
+from data_gen.storage import as_path
 
 FAMILY_STREAM = 13  # keeps the families' random streams apart from the GMM exemplars'
 FORMAT = 2  # chunk contents; bump to invalidate cached families (2: means over REALISATIONS)
@@ -134,7 +135,7 @@ def build_families(points: int, seed: int, extractor: tuple, cache_dir: str | Pa
     key = hashlib.sha256(json.dumps(description, sort_keys=True, default=str).encode()).hexdigest()[:16]
     indexed = list(enumerate(exemplars))
     chunks = [indexed[start : start + chunk] for start in range(0, len(indexed), chunk)]
-    result = cached_chunks(Path(cache_dir) / f"families-{key}", description,
+    result = cached_chunks(as_path(cache_dir) / f"families-{key}", description,
                            functools.partial(_make_chunk, points, seed, extractor), chunks, executor, "families")
     result["family"] = np.array([exemplar.family for exemplar in exemplars])
     result["label"] = np.array([exemplar.label() for exemplar in exemplars])

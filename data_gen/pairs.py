@@ -17,8 +17,9 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
 * On a Dask cluster: ``executor=dask scheduler=tcp://host:8786`` (no address:
   a LocalCluster of ``workers`` processes) sends the items to its workers
   (:mod:`data_gen.executor`), which write their parts into ``out_dir`` (a
-  folder they all see at the same path); this process merges the shards. An
-  item whose worker died twice is recorded as skipped with Dask's reason.
+  folder they all see at the same path, or an fsspec URL: ``s3://bucket/pairs``
+  with s3fs installed, :mod:`data_gen.storage`); this process merges the
+  shards. An item whose worker died twice is recorded as skipped with Dask's reason.
 * Deterministic: item i uses the random stream ``(seed, i)``, whatever the
   number of workers or shards.
 * Other methods: with ``other_methods.share`` > 0, that share of
@@ -60,8 +61,8 @@ from tqdm import tqdm
 from data_gen.executor import Executor, Lost
 from data_gen.makers import MapMaker, SourceError, build_maker
 from data_gen.provenance import file_sha256, git_commit, machine, run_config_command, utc_now
+from data_gen.storage import StoragePath, as_path, is_local, write_text_atomic
 from data_gen.shards import PARTS, Pairs, map_to_target, part_path, read_manifest, read_shard, shard_path, target_to_map, write_manifest
-from synthesis.atomic import atomic_write_text
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 
@@ -261,14 +262,14 @@ def _run_item(out_dir: str, item: int) -> tuple[int, str | None]:
     try:
         pair = make_pair(settings, maker, item)
     except SourceError as exc:  # bad source: recorded, never fatal
-        return item, skip_item(Path(out_dir), maker, item, str(exc))
-    pair.write(part_path(Path(out_dir), item), compressed=False)
+        return item, skip_item(as_path(out_dir), maker, item, str(exc))
+    pair.write(part_path(out_dir, item), compressed=False)
     return item, None
 
 
-def skip_item(out_dir: Path, maker: MapMaker, item: int, reason: str) -> str:
+def skip_item(out_dir: StoragePath, maker: MapMaker, item: int, reason: str) -> str:
     """Record item ``item`` as skipped for ``reason`` (its part file ``item-N.skip.json``); returns the reason."""
-    atomic_write_text(part_path(out_dir, item, skipped=True),
+    write_text_atomic(part_path(out_dir, item, skipped=True),
                       json.dumps({"item": item, "source": maker.source(item), "reason": reason}) + "\n")
     return reason
 
@@ -278,7 +279,7 @@ def chunk_items(chunk: int, size: int, total: int) -> range:
     return range(chunk * size, min((chunk + 1) * size, total))
 
 
-def done_items(out_dir: Path, chunk: int) -> set[int]:
+def done_items(out_dir: StoragePath, chunk: int) -> set[int]:
     """Items of ``chunk`` already made or skipped (in its shard file or as parts)."""
     done: set[int] = set()
     path = shard_path(out_dir, chunk)
@@ -288,12 +289,11 @@ def done_items(out_dir: Path, chunk: int) -> set[int]:
     return done
 
 
-def part_items(out_dir: Path) -> set[int]:
-    folder = out_dir / PARTS
-    return {int(p.name[5:12]) for p in folder.glob("item-*")} if folder.is_dir() else set()
+def part_items(out_dir: StoragePath) -> set[int]:
+    return {int(p.name[5:12]) for p in (out_dir / PARTS).glob("item-*")}
 
 
-def merge_chunk(out_dir: Path, chunk: int, items: range) -> None:
+def merge_chunk(out_dir: StoragePath, chunk: int, items: range) -> None:
     """Write shard ``chunk`` from its existing shard file and part files, then delete the parts."""
     path = shard_path(out_dir, chunk)
     singles, skipped = [], []
@@ -338,7 +338,7 @@ def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
     shard, num_shards = int(cfg.shard), int(cfg.num_shards)
     if num_shards < 1 or not 0 <= shard < num_shards:
         raise PatternshopError(f"shard must be in [0, num_shards), got shard={shard} num_shards={num_shards}")
-    out_dir = Path(cfg.out_dir)
+    out_dir = as_path(cfg.out_dir)
     key = settings.key()
     existing = read_manifest(out_dir)
     if existing is not None and existing.get("config_key") != key:
@@ -383,7 +383,8 @@ def generate(cfg) -> dict:  # noqa: ANN001 - omegaconf.DictConfig
 
         threads = torch.get_num_threads()
         try:  # one worker works in this process; remote workers need the folder's absolute path
-            for outcome in executor.map_unordered(functools.partial(_run_item, str(out_dir.absolute())), todo,
+            location = str(out_dir.absolute()) if is_local(out_dir) else str(out_dir)
+            for outcome in executor.map_unordered(functools.partial(_run_item, location), todo,
                                                   _start_worker, (settings, int(cfg.threads_per_worker))):
                 if isinstance(outcome, Lost):  # its Dask workers died on every try
                     outcome = outcome.task, skip_item(out_dir, maker, outcome.task, f"worker lost: {outcome.error}")

@@ -18,6 +18,9 @@ Shard arrays (K pairs; S raster size, H = W map size):
   points are ``points[offsets[k]:offsets[k + 1]]``.
 * ``item`` (K,) int64 and ``meta_json`` (per item: source, n, seed,
   synthesis loss and time; plus the skipped items of the shard).
+
+The folder may be a local path or an fsspec URL (``s3://bucket/pairs``,
+:mod:`data_gen.storage`); every file is written atomically.
 """
 
 from __future__ import annotations
@@ -25,11 +28,10 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from synthesis.atomic import atomic_path, atomic_write_text
+from data_gen.storage import StoragePath, as_path, write_atomic, write_text_atomic
 from synthesis.labmap import LabMap
 
 MANIFEST = "manifest.json"
@@ -48,12 +50,13 @@ def target_to_map(target: np.ndarray) -> LabMap:
     return LabMap(np.stack([target[..., 0] / 2.55, target[..., 1] - 128, target[..., 2] - 128], -1))
 
 
-def shard_path(folder: Path, chunk: int) -> Path:
-    return Path(folder) / f"pairs-{chunk:05d}.npz"
+def shard_path(folder: str | os.PathLike, chunk: int) -> StoragePath:
+    """Shard ``chunk`` of a pair folder (a local path or an fsspec URL, :func:`data_gen.storage.as_path`)."""
+    return as_path(folder) / f"pairs-{chunk:05d}.npz"
 
 
-def part_path(folder: Path, item: int, skipped: bool = False) -> Path:
-    return Path(folder) / PARTS / (f"item-{item:07d}.skip.json" if skipped else f"item-{item:07d}.npz")
+def part_path(folder: str | os.PathLike, item: int, skipped: bool = False) -> StoragePath:
+    return as_path(folder) / PARTS / (f"item-{item:07d}.skip.json" if skipped else f"item-{item:07d}.npz")
 
 
 @dataclass
@@ -100,26 +103,24 @@ class Pairs:
                          np.array([0, self.offsets[k + 1] - self.offsets[k]], np.int64), [self.meta[k]], [])
                 for k in range(len(self))]
 
-    def write(self, path: Path, compressed: bool = True) -> None:
-        """Write as one shard file, atomically."""
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as handle:
-                (np.savez_compressed if compressed else np.savez)(
-                    handle, item=self.item, raster=self.raster, target=self.target, points=self.points, offsets=self.offsets,
-                    meta_json=np.str_(json.dumps({"items": self.meta, "skipped": self.skipped})))
+    def write(self, path: str | os.PathLike, compressed: bool = True) -> None:
+        """Write as one shard file (a local path or an fsspec URL), atomically."""
+        write_atomic(path, lambda handle: (np.savez_compressed if compressed else np.savez)(
+            handle, item=self.item, raster=self.raster, target=self.target, points=self.points, offsets=self.offsets,
+            meta_json=np.str_(json.dumps({"items": self.meta, "skipped": self.skipped}))))
 
 
 def read_shard(path: str | os.PathLike) -> Pairs:
-    """Read a shard (or part) file."""
-    with np.load(path, allow_pickle=False) as data:
+    """Read a shard (or part) file (a local path or an fsspec URL)."""
+    with as_path(path).open("rb") as handle, np.load(handle, allow_pickle=False) as data:
         meta = json.loads(str(data["meta_json"]))
         return Pairs(item=data["item"].astype(np.int64), raster=data["raster"], target=data["target"], points=data["points"],
                      offsets=data["offsets"].astype(np.int64), meta=meta["items"], skipped=meta["skipped"])
 
 
-def list_shards(folder: str | os.PathLike) -> list[Path]:
+def list_shards(folder: str | os.PathLike) -> list[StoragePath]:
     """Shard files of a pair folder, in item order."""
-    return sorted(Path(folder).glob("pairs-*.npz"))
+    return sorted(as_path(folder).glob("pairs-*.npz"), key=lambda path: path.name)
 
 
 def load_pairs(folder: str | os.PathLike) -> Pairs:
@@ -133,16 +134,16 @@ def load_pairs(folder: str | os.PathLike) -> Pairs:
 
 
 def read_manifest(folder: str | os.PathLike) -> dict | None:
-    path = Path(folder) / MANIFEST
+    path = as_path(folder) / MANIFEST
     return json.loads(path.read_text()) if path.is_file() else None
 
 
 def write_manifest(folder: str | os.PathLike, header: dict) -> dict:
     """Rebuild ``manifest.json`` from ``header`` and every shard present (so shards made elsewhere count too)."""
-    folder = Path(folder)
+    folder = as_path(folder)
     shards, skipped, pairs, points, total_bytes = [], [], 0, 0, 0
     for path in list_shards(folder):
-        with np.load(path, allow_pickle=False) as data:
+        with path.open("rb") as handle, np.load(handle, allow_pickle=False) as data:
             meta = json.loads(str(data["meta_json"]))
         count = len(meta["items"])
         shards.append({"file": path.name, "pairs": count, "skipped": len(meta["skipped"]), "bytes": path.stat().st_size})
@@ -154,5 +155,5 @@ def write_manifest(folder: str | os.PathLike, header: dict) -> dict:
     manifest.update({"pairs": pairs, "points": points, "bytes": total_bytes,
                      "bytes_per_1000_pairs": round(total_bytes * 1000 / pairs) if pairs else None,
                      "shards": shards, "skipped": skipped})
-    atomic_write_text(folder / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+    write_text_atomic(folder / MANIFEST, json.dumps(manifest, indent=2) + "\n")
     return manifest

@@ -214,4 +214,4 @@ METHODS: dict[str, Method] = {
     "clusters": thomas_clusters,
     "floyd_steinberg": floyd_steinberg,
 }
-LABELS = {"random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "jitter", "clusters": "red"}
+LABELS = {"random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "step", "clusters": "red"}  # jitter: merged into step

@@ -3,13 +3,13 @@
 1. **Read** a point pattern (default ``examples/logo_points.txt``: about 7,200
    points synthesised from ``examples/logo.tif`` by ``examples/make_examples.py``).
 2. **Infer** its map with the network (ONNX Runtime, :func:`export.runtime.points_to_map`),
-   reading the pattern at ``--points-per-ink`` points for a fully dark map.
+   reading the pattern at ``--points-per-ink`` points per unit area of full ink.
 3. **Edit** the map as in the paper's Fig. 1 (:mod:`synthesis.edits`): the background
    (where the inferred density is below ``--background-below``) gets another
    preset correlation (``--preset``, default step noise) and a density
    gradient from top to bottom (``--gradient``).
 4. **Synthesise** points from the edited map (:func:`synthesis.synthesize.synthesize`,
-   fast schedule, ``n = points_per_ink x mean density``, so the count stays comparable).
+   fast schedule, ``n = points_per_ink x area x mean density``, so the count stays comparable).
 
 Writes into ``--out`` (default ``out/demo``): ``input_points.png``,
 ``inferred.tif`` + ``inferred.png`` (sRGB preview), ``edited.tif`` + ``edited.png``,
@@ -40,6 +40,7 @@ from synthesis.edits import density_gradient, set_correlation
 from export.runtime import DEFAULT_MODEL, OnnxModel, check_palette, pattern_raster, points_to_map
 from patternshop.cli import OneLineErrorParser
 from synthesis.atomic import atomic_path, atomic_write_text
+from synthesis.conventions import POINTS_PER_INK_MEANING
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.labmap import LabMap
 from synthesis.mapio import write_map, write_preview
@@ -67,9 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="input point file (default examples/logo_points.txt)")
     parser.add_argument("--model", metavar="FILE", help=f"ONNX model (default the shipped {DEFAULT_MODEL.relative_to(ROOT)})")
     parser.add_argument("--out", default="out/demo", metavar="DIR", help="output folder (default out/demo; created if missing)")
-    parser.add_argument("--points-per-ink", type=float, default=20_000, metavar="K",
-                        help="points of a fully dark map: the scale the input is read at and the output "
-                        "synthesised at (default 20000)")
+    parser.add_argument("--points-per-ink", type=float, default=30_000, metavar="K",
+                        help=f"{POINTS_PER_INK_MEANING}: the scale the input is read at and the output "
+                        "synthesised at (default 30000, the bundled points' scale)")
     parser.add_argument("--iterations", type=int, metavar="K", help="synthesis iterations (default: the fast schedule's 250)")
     parser.add_argument("--size", type=int, default=384, metavar="PX", help="width of each contact-sheet panel (default 384)")
     parser.add_argument("--png-width", type=int, default=1024, metavar="PX", help="width of the point renderings (default 1024)")

@@ -69,7 +69,7 @@ class FileResult:
 class SynthesisSettings:
     """How :func:`resynthesize_maps` synthesises each map (see :func:`synthesis.synthesize.synthesize`)."""
 
-    points: int | None = None  # None: points_per_ink x mean density
+    points: int | None = None  # None: points_per_ink x area x mean density (synthesis.synthesize.point_count)
     points_per_ink: float | None = None  # None: synthesis.synthesize.POINTS_PER_INK
     schedule: str = "fast"
     iterations: int | None = None
@@ -185,7 +185,7 @@ def _load_model(path: Path | None, threads: int) -> None:
 
 @dataclass(frozen=True)
 class _InferenceSettings:
-    points_per_ink: float | None  # None: chosen per file (export.evidence.choose_points_per_ink)
+    points_per_ink: float | None  # None: per file (export.evidence.pattern_scale: the header's, else chosen)
     bits: int
     memory_limit: float  # bytes one process may use for one file
     symmetries: int  # readings averaged per file (export.runtime.predict_symmetric)
@@ -197,7 +197,7 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
 
     One raster per network run: on the CPU a batch of 8 took as long per raster or longer (68-89 ms vs 68-74 ms).
     """
-    from export.evidence import ScaleChoice, choose_points_per_ink
+    from export.evidence import pattern_scale
     from export.runtime import infer_map, map_width, raster_scale
     from synthesis.mapio import write_tiff
     from synthesis.resources import inference_bytes
@@ -208,8 +208,7 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
         notes: tuple[str, ...] = ()
         try:
             points = read_points(job.source)
-            scale = (ScaleChoice(settings.points_per_ink, False) if settings.points_per_ink is not None
-                     else choose_points_per_ink(points, POINTS_PER_INK))
+            scale = pattern_scale(points, settings.points_per_ink)
             (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink,
                                                             scale.points_per_ink)
             width = map_width(points.domain, model, None)
@@ -239,8 +238,8 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
         batch_size: point files per worker task.
         workers: processes, each doing the whole work for its files (1: this process).
         overwrite: replace existing outputs (default: skip their inputs).
-        points_per_ink: points of a fully dark map at the patterns' scale; None chooses it per file as ``infer``
-            does (:func:`export.runtime.infer_map`, which also fills a, b where the evidence is thin).
+        points_per_ink: points per unit area of full ink at the patterns' scale; None takes it per file as ``infer``
+            does (:func:`export.evidence.pattern_scale`: the file's header, else chosen from the points).
         memory_limit: bytes all workers together may use; a file whose estimate exceeds its worker's share fails.
         symmetries: readings averaged per file (:func:`export.runtime.predict_symmetric`); 1 (default) for
             throughput, 8 for ``infer``'s reading at 8 times the network time.

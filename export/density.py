@@ -67,6 +67,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 
+from synthesis.conventions import full_ink_points
 from synthesis.points import PointSet
 from synthesis.raster import point_raster
 
@@ -190,11 +191,11 @@ def two_guide_filter(source: np.ndarray, guide: np.ndarray, noise_per_mean: np.n
 def sharpen_density(points: PointSet, density: np.ndarray, points_per_ink: float) -> tuple[np.ndarray, np.ndarray]:
     """(density (H, W) in [0, 1], the weight (H, W) in [0, 1] of the part taken from the points) of a map whose
     network density is ``density`` (H, W) in [0, 1], already holding the pattern's ink at ``points_per_ink``
-    (points of a fully dark map of the domain). Fewer than 2 points: the density unchanged, weight 0."""
+    (per unit area of full ink). Fewer than 2 points: the density unchanged, weight 0."""
     density = np.asarray(density, np.float64)
     if len(points) < 2:
         return density, np.zeros(density.shape)
-    full_ink_per_px = points_per_ink / density.size
+    full_ink_per_px = full_ink_points(points_per_ink, points.domain) / density.size
     spacing_px = 1.0 / np.sqrt(full_ink_per_px)
     radius_px = GUIDE_RADIUS * spacing_px
     xy_px = map_points(points, density.shape)

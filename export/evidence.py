@@ -2,10 +2,11 @@
 
 Two measurements on the points alone, before and after the network:
 
-1. **Scale for dense patterns** (:func:`choose_points_per_ink`). A map's
-   density is ``n / points_per_ink`` per unit area and saturates at 1 (L = 0);
-   a pattern denser than that somewhere cannot be read at the default 50,000
-   points per ink. The local density is a kernel density estimate on a grid
+1. **Scale for dense patterns** (:func:`choose_points_per_ink`, when neither
+   the user nor the point file's header gives it: :func:`pattern_scale`). Full
+   ink (L = 0) holds ``points_per_ink`` points per unit area
+   (:data:`synthesis.conventions.POINTS_PER_INK_MEANING`); a pattern denser than
+   that somewhere cannot be read at the default 50,000 points per ink. The local density is a kernel density estimate on a grid
    whose cells hold :data:`FULL_INK_POINTS_PER_CELL` points at full ink (at
    the default scale), blurred by a Gaussian of :data:`DENSITY_SIGMA_CELLS`
    cells (about 800 points under the kernel at full ink: 3.5 % noise for a
@@ -49,7 +50,7 @@ Two measurements on the points alone, before and after the network:
    within :data:`ZOOM_NEIGHBOURHOOD_PX` of it, so the light side of a density
    edge is read at the dark side's scale.
 4. **Ink the points hold** (:func:`calibrate_density`). The pattern holds
-   ``n`` points, so the map's mean density must be ``n / points_per_ink``
+   ``n`` points, so the map's mean density must be ``n / (points_per_ink w h)``
    (``synthesize``'s count): one factor over the network's ink restores it,
    water-filled under full ink. No points, no ink: the network cannot invent
    any. (The ink is not capped where a pixel's disc holds no point: a
@@ -65,6 +66,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter, maximum_filter
 
+from synthesis.conventions import POINTS_PER_INK
 from synthesis.labmap import LabMap
 from synthesis.points import PointSet
 
@@ -89,20 +91,22 @@ class ScaleChoice:
     """The points per ink a pattern is read at.
 
     Attributes:
-        points_per_ink: points of a fully dark map (the synthesiser's ``n = points_per_ink x mean density``).
-        automatic: chosen by :func:`choose_points_per_ink` (False: given by the user).
+        points_per_ink: points per unit area of full ink (the synthesiser's ``n = points_per_ink x w x h x mean density``).
+        automatic: chosen by :func:`choose_points_per_ink` (False: given by the user or the file's header).
         local_density_quantile: the :data:`DENSE_QUANTILE` quantile of the local density at the default scale
-            (1 = a fully dark map); None when the user gave the scale.
+            (1 = a fully dark map); None when the scale was given.
+        origin: who gave a scale that is not automatic (``"given"``: the user; ``"from the file's header"``).
     """
 
     points_per_ink: float
     automatic: bool
     local_density_quantile: float | None = None
+    origin: str = "given"
 
     def describe(self) -> str:
         """One line for the user, e.g. ``80,000 points per ink (automatic: ...)``."""
         if not self.automatic:
-            return f"{self.points_per_ink:,.0f} points per ink (given)"
+            return f"{self.points_per_ink:,.0f} points per ink ({self.origin})"
         quantile = f"{100 * DENSE_QUANTILE:g}th-percentile local density {self.local_density_quantile:.2f}"
         return f"{self.points_per_ink:,.0f} points per ink (automatic: {quantile} of a fully dark map at the default)"
 
@@ -127,6 +131,17 @@ def local_density(points: PointSet, points_per_ink: float) -> np.ndarray:
     area[:, -1] *= inside[1]
     blurred = gaussian_filter(counts, DENSITY_SIGMA_CELLS, mode="reflect") / np.maximum(gaussian_filter(area, DENSITY_SIGMA_CELLS, mode="reflect"), 1e-9)
     return blurred / FULL_INK_POINTS_PER_CELL
+
+
+def pattern_scale(points: PointSet, points_per_ink: float | None = None) -> ScaleChoice:
+    """The scale ``infer`` and ``convert`` read ``points`` at: ``points_per_ink`` when given, else the one the
+    point file's header records (:attr:`synthesis.points.PointSet.points_per_ink`), else
+    :func:`choose_points_per_ink` from the default :data:`synthesis.conventions.POINTS_PER_INK`."""
+    if points_per_ink is not None:
+        return ScaleChoice(points_per_ink, False)
+    if points.points_per_ink is not None:
+        return ScaleChoice(points.points_per_ink, False, origin="from the file's header")
+    return choose_points_per_ink(points, POINTS_PER_INK)
 
 
 def choose_points_per_ink(points: PointSet, default: float) -> ScaleChoice:
@@ -264,7 +279,7 @@ def blend_zoomed(zoom: np.ndarray, levels: tuple[int, ...], readings: list[np.nd
 def calibrate_density(density: np.ndarray, mean_density: float) -> tuple[np.ndarray, float]:
     """((H, W) density ``min(s density, 1)``, the factor ``s``) with ``s`` making its mean ``mean_density``.
 
-    ``density`` (H, W) in [0, 1], ``mean_density`` >= 0 (the pattern's ``n / points_per_ink``). When the mean
+    ``density`` (H, W) in [0, 1], ``mean_density`` >= 0 (the pattern's ``n / (points_per_ink w h)``). When the mean
     cannot be reached (the mean would need more than full ink where the network put ink), full ink there.
     A map without ink stays as it is (factor 1); ``mean_density`` 0 gives a white map (factor 0).
     """

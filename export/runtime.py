@@ -6,11 +6,13 @@
 
 1. **Scale.** The network learnt density and correlation in pixel units: in
    training, a fully dark map held ``P_train`` points (the model's
-   ``points_per_ink``, 8,000 for the default model) on a 256-pixel raster.
-   A pattern is read in the synthesiser's convention, ``n = points_per_ink x
-   mean density`` (default: the synthesiser's 50,000, so ``infer`` followed by
-   ``synthesize`` keeps the point count), and rasterised at
-   ``R = 256 * sqrt(points_per_ink / (w h P_train))`` pixels per unit of the
+   ``points_per_ink``, 8,000 for the default model) on a 256-pixel raster
+   of the unit square. A pattern is read in the synthesiser's convention,
+   ``points_per_ink`` per unit area of full ink, ``n = points_per_ink x w x h x
+   mean density`` (:data:`synthesis.conventions.POINTS_PER_INK_MEANING`; default:
+   the file's ``# points_per_ink`` header, else :func:`export.evidence.choose_points_per_ink`,
+   so ``infer`` followed by ``synthesize`` keeps the point count), and rasterised at
+   ``R = 256 * sqrt(points_per_ink / P_train)`` pixels per unit of the
    domain ``[0, w] x [0, h]``, so that a region of density d has as many points
    per pixel, at the same spacing in pixels, as in training.
 2. **Mirror and pad.** The raster is :func:`synthesis.raster.point_raster`
@@ -56,6 +58,7 @@ from export.density import REGULAR_NOISE_SHARE, denoise_density, poisson_resampl
 from synthesis.edits import resize
 from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
                              fill_thin_correlation, local_evidence, summarise, zoom_levels)
+from synthesis.conventions import full_ink_points
 from synthesis.errors import PatternshopError, PatternshopWarning, require_file
 from synthesis.labmap import POINTS_PER_INK, LabMap
 from synthesis.points import PointSet
@@ -180,7 +183,7 @@ def raster_scale(domain: tuple[float, float], raster_size: int, trained_points_p
     if not points_per_ink > 0:
         raise PatternshopError(f"points per ink must be positive, got {points_per_ink:g}")
     w, h = domain
-    scale = raster_size * math.sqrt(points_per_ink / (w * h * (trained_points_per_ink or points_per_ink)))
+    scale = raster_size * math.sqrt(points_per_ink / (trained_points_per_ink or points_per_ink))
     return scale, SIZE_MULTIPLE * max(1, math.ceil((scale * max(w, h) + 2 * BORDER_PX) / SIZE_MULTIPLE - 1e-9))
 
 
@@ -201,9 +204,9 @@ def map_width(domain: tuple[float, float], model: OnnxModel, width: int | None) 
     return width if width is not None else max(1, round(domain[0] / max(domain) * model.raster_size))
 
 
-def saturation_warning(count: int, points_per_ink: float) -> str | None:
-    """A warning when ``count`` points exceed a fully dark map at ``points_per_ink`` (mean density > 1), else None."""
-    if count <= points_per_ink:
+def saturation_warning(count: int, points_per_ink: float, domain: tuple[float, float]) -> str | None:
+    """A warning when ``count`` points exceed a fully dark map of ``domain`` at ``points_per_ink`` (mean density > 1), else None."""
+    if count <= full_ink_points(points_per_ink, domain):
         return None
     return (f"{count} points are more than a fully dark map holds at {points_per_ink:g} points per ink: the map "
             "comes out saturated (L near 0); pass a larger --points-per-ink")
@@ -306,10 +309,10 @@ def bootstrap_noise(points: PointSet, model: OnnxModel, density: np.ndarray, poi
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     readings = []
     for _ in range(2):
-        xy = poisson_resample(density, points_per_ink / density.size, rng) / px_per_unit
+        xy = poisson_resample(density, full_ink_points(points_per_ink, points.domain) / density.size, rng) / px_per_unit
         resampled = PointSet(np.minimum(xy, np.asarray(points.domain)), points.domain)
         lab_map, _, _ = read_pattern(resampled, model, points_per_ink, shape, symmetries)
-        readings.append(calibrate_density(lab_map.density(), len(resampled) / points_per_ink)[0])
+        readings.append(calibrate_density(lab_map.density(), len(resampled) / full_ink_points(points_per_ink, points.domain))[0])
     return (readings[0] - readings[1]) / math.sqrt(2.0)
 
 
@@ -324,7 +327,7 @@ def refine_density(points: PointSet, model: OnnxModel, density: np.ndarray, poin
     (:func:`export.density.sharpen_density`), and that part smoothed where its detail is what
     :data:`export.density.REGULAR_NOISE_SHARE` of that noise would give.
     """
-    ink = len(points) / points_per_ink
+    ink = len(points) / full_ink_points(points_per_ink, points.domain)
     refined, width, weight = density, np.zeros(density.shape), np.zeros(density.shape)
     if denoise:
         noise = bootstrap_noise(points, model, density, points_per_ink, symmetries)
@@ -370,7 +373,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
     check_not_degenerate(points)
     scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
     if not scale.automatic:
-        message = saturation_warning(len(points), scale.points_per_ink)
+        message = saturation_warning(len(points), scale.points_per_ink, points.domain)
         if message:
             warnings.warn(message, PatternshopWarning, stacklevel=2)
     width_px = map_width(points.domain, model, width)
@@ -378,7 +381,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
     lab_map, output, pixels_per_unit = read_pattern(points, model, scale.points_per_ink, shape, symmetries)
     density, factor = lab_map.density(), None
     if calibrate:
-        density, factor = calibrate_density(density, len(points) / scale.points_per_ink)
+        density, factor = calibrate_density(density, len(points) / full_ink_points(scale.points_per_ink, points.domain))
     ab = lab_map.ab.astype(np.float64)
     evidence = local_evidence(points, shape, pixels_per_unit)
     zooms, zoomed_share = (1,), 0.0

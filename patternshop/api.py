@@ -10,8 +10,9 @@ functions. Conventions:
 * A **pattern** is a :class:`~synthesis.points.PointSet`: ``xy`` (n, 2) float64 in the domain, origin
   top-left, y down; ``domain`` (w, h); optional ``radius`` (n,) in the same units.
 * A **correlation** is a preset name (``"blue"``, see :func:`presets`), a text ``"A,B"`` or an (a, b) pair.
-* ``points_per_ink`` is how many points a fully dark map holds: ``n = points_per_ink x mean density``
-  (default :data:`POINTS_PER_INK`, 50,000).
+* ``points_per_ink`` is :data:`~synthesis.conventions.POINTS_PER_INK_MEANING`:
+  ``n = points_per_ink x w x h x mean density`` (default :data:`POINTS_PER_INK`, 50,000). :func:`synthesize`
+  records it in its points (``points.points_per_ink``, written into ``.txt`` files), and :func:`infer` reads it.
 * Errors a user can cause raise :class:`~synthesis.errors.PatternshopError` with a one-line message;
   losses and guesses warn with :class:`~synthesis.errors.PatternshopWarning`.
 
@@ -159,7 +160,8 @@ def presets(palette: PaletteLike = None) -> dict[str, tuple[float, float]]:
     """The palette's named correlations: name -> (a, b), each in [-128, 127].
 
     Example: ``presets()["blue"]`` is ``(24.0, -52.0)`` for the shipped palette (blue noise); the names are
-    white, blue, green, red, step, jitter, lattice, perturbed, lloyd and matern.
+    white, blue, green, red, step, lattice, lloyd and matern (``jitter`` and ``perturbed`` were merged into step
+    and lloyd: :func:`preset` still takes them, with a warning).
     """
     return _as_palette(palette).preset_ab()
 
@@ -170,10 +172,7 @@ def preset(name: str, palette: PaletteLike = None) -> tuple[float, float]:
     Raises:
         PatternshopError: no preset of that name (the message lists them).
     """
-    known = presets(palette)
-    if name not in known:
-        raise PatternshopError(f"unknown preset {name!r}; presets: {', '.join(known)}")
-    return known[name]
+    return _as_palette(palette).preset(name)
 
 
 def correlation_ab(correlation: Correlation, palette: PaletteLike = None) -> tuple[float, float]:
@@ -184,10 +183,13 @@ def correlation_ab(correlation: Correlation, palette: PaletteLike = None) -> tup
     Raises:
         PatternshopError: an unknown name, or a colour that is not two finite numbers in [-128, 127].
     """
+    from synthesis.palette import MERGED_PRESETS
     from synthesis.photo import check_ab, parse_correlation
 
     if isinstance(correlation, str):
         text = correlation.strip()
+        if "," not in text and text in MERGED_PRESETS:
+            return preset(text, palette)
         return parse_correlation(text, {} if "," in text else presets(palette))
     try:
         values = [float(v) for v in correlation]
@@ -311,8 +313,8 @@ def synthesize(
 
     Args:
         lab_map: the map, or the path of a map file.
-        points: how many points, >= 2 (default: :func:`point_count`, ``points_per_ink`` x mean density).
-        points_per_ink: points of a fully dark map, > 0, when ``points`` is not given.
+        points: how many points, >= 2 (default: :func:`point_count`, ``points_per_ink`` x w x h x mean density).
+        points_per_ink: points per unit area of full ink, > 0, when ``points`` is not given.
         iterations: optimisation steps (default: the schedule's 250; fewer are faster and rougher).
         seed: 0 to 2**32 - 1; the same seed (and ``threads``) gives the same points.
         dot_sizes: give each point a radius so that the rendering reproduces the map's tone.
@@ -374,16 +376,15 @@ def load_model(path: PathLike | None = None, *, threads: int = 1) -> OnnxModel:
 
 
 def infer_scale(points: PointSet, points_per_ink: float | None = None) -> ScaleChoice:
-    """The scale :func:`infer` reads a pattern at: ``points_per_ink`` if given (> 0), else 50,000 unless the
-    pattern is denser somewhere (then the scale at which its densest 1% reads as full ink).
+    """The scale :func:`infer` reads a pattern at: ``points_per_ink`` if given (> 0), else the one its file's
+    header records (``points.points_per_ink``, written by :func:`synthesize`), else 50,000 unless the pattern is
+    denser somewhere (then the scale at which its densest 1% reads as full ink).
 
     Returns an :class:`~export.evidence.ScaleChoice` (``.points_per_ink``, ``.automatic``, ``.describe()``).
     """
-    from export.evidence import ScaleChoice, choose_points_per_ink
+    from export.evidence import pattern_scale
 
-    if points_per_ink is not None:
-        return ScaleChoice(_check_positive("points_per_ink", points_per_ink), False)
-    return choose_points_per_ink(points, POINTS_PER_INK)
+    return pattern_scale(points, None if points_per_ink is None else _check_positive("points_per_ink", points_per_ink))
 
 
 def infer(
@@ -404,8 +405,8 @@ def infer(
     Args:
         points: the pattern, or the path of a point file (an empty pattern gives a white map).
         model: a model from :func:`load_model`, the path of an ``.onnx`` model, or None for the shipped one.
-        points_per_ink: points of a fully dark map at the pattern's scale, > 0 (default: :func:`infer_scale`
-            chooses; give the value the pattern was synthesised at, e.g. 20,000, to read it right).
+        points_per_ink: points per unit area of full ink at the pattern's scale, > 0 (default: :func:`infer_scale`:
+            the point file's header, written by :func:`synthesize`, else chosen from the points).
         width: map width in pixels, >= 1 (default: 256 px on the domain's long side).
         symmetries: average the network over 8 (flips and transposes), 4 (flips) or 1 (8x faster) symmetries.
         fill: read the correlation of light areas at a zoom and fill it where too few points show it.

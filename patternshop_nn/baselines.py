@@ -115,10 +115,10 @@ def cached_baselines(folder: str | Path, pairs: Pairs, positions: np.ndarray, ce
     import json
 
     from data_gen.shards import read_manifest
-    from synthesis.atomic import atomic_write_text
+    from data_gen.storage import as_path, write_text_atomic
     from synthesis.palette import load_palette
 
-    folder = Path(folder)
+    folder = as_path(folder)
     manifest = read_manifest(folder) or {}
     settings = manifest.get("settings", {})
     positions = np.asarray(positions)
@@ -131,5 +131,5 @@ def cached_baselines(folder: str | Path, pairs: Pairs, positions: np.ndarray, ce
     targets = pairs.target[positions].transpose(0, 3, 1, 2).astype(np.float32) / 255.0
     metrics = evaluate_baselines(pairs.raster[positions], [pairs.points_of(int(k)) for k in positions], targets,
                                  float(settings.get("points_per_ink", 8000)), load_palette(settings.get("palette")), cells)
-    atomic_write_text(cache, json.dumps({"key": key, "metrics": metrics}, indent=2) + "\n")
+    write_text_atomic(cache, json.dumps({"key": key, "metrics": metrics}, indent=2) + "\n")
     return metrics

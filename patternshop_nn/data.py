@@ -25,6 +25,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from data_gen.shards import Pairs, load_pairs
+from data_gen.storage import as_path
 from patternshop_nn.baselines import cached_baselines
 from synthesis.errors import PatternshopError
 
@@ -90,8 +91,8 @@ class PairDataModule(L.LightningDataModule):
                  num_workers: int = 0, max_val_items: int | None = 32, baselines: bool = True,
                  baseline_cells: int = 4, extra_pairs_dirs: list[str | Path] | tuple = ()) -> None:
         super().__init__()
-        self.pairs_dir = Path(pairs_dir)
-        self.extra_pairs_dirs = [Path(folder) for folder in extra_pairs_dirs]
+        self.pairs_dir = as_path(pairs_dir)  # local folders or fsspec URLs (data_gen.storage)
+        self.extra_pairs_dirs = [as_path(folder) for folder in extra_pairs_dirs]
         self.batch_size, self.val_fraction, self.augment, self.crop = batch_size, val_fraction, augment, crop
         self.num_workers, self.max_val_items = num_workers, max_val_items
         self.baselines, self.baseline_cells = baselines, baseline_cells

@@ -56,7 +56,7 @@ from export.density import count_raster
 from export.evidence import ScaleChoice
 from export.runtime import DEFAULT_SYMMETRIES, Inference, OnnxModel, infer_map
 from patternshop_nn.baselines import KDE_BANDWIDTHS, kde_density
-from synthesis.conventions import POINTS_PER_INK
+from synthesis.conventions import POINTS_PER_INK, full_ink_points
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
 from synthesis.points import PointSet
@@ -88,7 +88,7 @@ STATIONARY: dict[str, tuple[Callable[[int, int], np.ndarray], str]] = {  # proce
     "poisson": (_generator("white"), "white"),
     "poisson_disk": (poisson_disk, "blue"),
     "lloyd": (_lloyd_process, "blue"),
-    "jitter": (_generator("jitter"), "jitter"),
+    "jitter": (_generator("jitter"), "step"),  # the jittered grid: its preset is merged into step (palette.MERGED_PRESETS)
     "thomas": (_generator("red"), "red"),
 }
 
@@ -118,9 +118,10 @@ def resample(density: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 def points_per_ink_of(n: int, density: np.ndarray) -> float:
-    """The true scale of n points drawn from ``density``: points of a fully dark map of the same domain
-    (the synthesiser's ``n = points_per_ink x mean density``)."""
-    return n / float(np.mean(density))
+    """The true scale of n points drawn from ``density`` (H, W) on its domain (longer side 1): points per unit
+    area of full ink (the synthesiser's ``n = points_per_ink x w x h x mean density``)."""
+    height, width = density.shape
+    return n / full_ink_points(float(np.mean(density)), (width / max(height, width), height / max(height, width)))
 
 
 def l_scores(truth_L: np.ndarray, L: np.ndarray) -> tuple[float, float]:
@@ -132,9 +133,7 @@ def l_scores(truth_L: np.ndarray, L: np.ndarray) -> tuple[float, float]:
 
 def kde_L(xy: np.ndarray, shape: tuple[int, int], points_per_ink: float, bandwidth_px: float) -> np.ndarray:
     """(H, W) L of a Gaussian KDE of points on a map of ``shape`` read at ``points_per_ink`` (the synthesiser's)."""
-    height, width = shape
-    full_ink_per_unit_square = points_per_ink * max(shape) ** 2 / (height * width)  # kde_density's convention
-    return 100.0 * (1.0 - kde_density(count_raster(np.asarray(xy) * max(shape), shape), full_ink_per_unit_square, bandwidth_px))
+    return 100.0 * (1.0 - kde_density(count_raster(np.asarray(xy) * max(shape), shape), points_per_ink, bandwidth_px))
 
 
 def kde_scores(xy: np.ndarray, truth_L: np.ndarray, points_per_ink: float) -> dict:

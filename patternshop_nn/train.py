@@ -29,6 +29,7 @@ from pathlib import Path
 import hydra
 import lightning as L
 import torch
+from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.provenance import CONF_DIR
@@ -82,7 +83,7 @@ def train(cfg: DictConfig) -> dict:
 
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
-    if cfg.data.generate:
+    if cfg.data.generate and rank_zero_only.rank == 0:  # DDP: the ranks rank 0 starts read what it made before
         make_pairs(cfg)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     run_dir = Path(cfg.run_dir)
@@ -115,12 +116,14 @@ def train(cfg: DictConfig) -> dict:
         interrupted = True
     metrics = {key: round(float(value), 6) for key, value in trainer.callback_metrics.items() if key.startswith("val/")}
     summary = {"run_dir": str(run_dir), "resumed_from": resume_from, "init_from": cfg.get("init_from"), "interrupted": interrupted, "global_step": trainer.global_step,
-               "epochs": trainer.current_epoch, "seconds_this_run": round(time.perf_counter() - start, 1),
+               "epochs": trainer.current_epoch, "world_size": trainer.world_size, "seconds_this_run": round(time.perf_counter() - start, 1),
                "median_step_seconds": round(statistics.median(timer.seconds), 4) if timer.seconds else None,
                "batch_size": int(data.batch_size), "threads": torch.get_num_threads(),
                "train_pairs": len(datamodule.train_set), "val_pairs": len(datamodule.val_set),
                "val_metrics": metrics, "baselines": datamodule.baseline_metrics,
                "checkpoints": {"last": str(last), "best": callbacks[1].best_model_path or None}}
+    if not trainer.is_global_zero:  # DDP: one summary, rank 0's
+        return summary
     run_dir.mkdir(parents=True, exist_ok=True)
     from synthesis.atomic import atomic_write_text
 
@@ -140,4 +143,5 @@ def main(cfg: DictConfig) -> None:
             raise
         print(f"train.py: error: {exc}", file=sys.stderr)
         sys.exit(2)
-    print(json.dumps(summary, indent=2))
+    if rank_zero_only.rank == 0:
+        print(json.dumps(summary, indent=2))

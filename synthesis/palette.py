@@ -23,8 +23,12 @@ Latent ``z`` in [0, 1]^2 and chroma relate by ``a, b = 255 z - 128``.
 from __future__ import annotations
 
 import functools
+import io
 import json
 import os
+import zipfile
+import zlib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +47,9 @@ DECODE_NEIGHBOURS = 8  # exemplars interpolated by a decode
 DECODE_POWER = 4.0  # inverse-distance weight exponent of the decode (in PCA feature space)
 CLOSE_TO_CORPUS = 1.5  # nearest-exemplar distance (in exemplar spacings) up to which a decode is confident
 OUTSIDE_CORPUS = 3.0  # nearest-exemplar distance (in exemplar spacings) beyond which a pattern is outside the corpus
+# presets merged into another (fewer than 15 ab units apart in the shipped palette, lloyd-perturbed 3.6,
+# step-jitter 6.7, so no colour could tell them apart); the old name still works, with a warning
+MERGED_PRESETS = {"perturbed": "lloyd", "jitter": "step"}
 
 
 def latent_to_ab(z: np.ndarray) -> np.ndarray:
@@ -128,34 +135,44 @@ class Palette:
         ``layout_only=True`` also reads format 2 (its PCF tables are in an older
         estimator's terms and it has no dispersion: ones stand in), for
         :mod:`data_gen.palette_table`, which rebuilds the tables from the layout.
+
+        The arrays are read lazily: the file's bytes are read at once (so a later change to the file cannot mix
+        two palettes), each array is decompressed and converted on its first use. Synthesis uses only ``radii``,
+        ``lut`` and ``dispersion_lut``; the exemplars and the feature reduction (about half the file) are for
+        decoding, so a synthesis never pays for them (issue 27: start-up).
         """
         path = Path(path) if path is not None else DEFAULT_PALETTE
         require_file(path, "a palette file", missing="palette not found (build it with 'python -m data_gen.palette')")
         try:
-            with np.load(path, allow_pickle=False) as data:
-                version = int(data["format_version"])
-                if version != FORMAT_VERSION and not (layout_only and version == 2):
-                    raise PatternshopError(f"{path}: palette format {version}, this Patternshop reads {FORMAT_VERSION}")
-                return cls(
-                    radii=data["radii"].astype(np.float64),
-                    lut=data["lut"].astype(np.float32),
-                    exemplar_z=data["exemplar_z"].astype(np.float64),
-                    exemplar_pcf=data["exemplar_pcf"].astype(np.float32),
-                    exemplar_points=data["exemplar_points"].astype(np.float64) / 65535.0,
-                    exemplar_spectrum=data["exemplar_spectrum"].astype(np.float64),
-                    exemplar_dispersion=(data["exemplar_dispersion"].astype(np.float32) if version >= 3
-                                         else np.ones(data["exemplar_pcf"].shape, np.float32)),
-                    dispersion_lut=(data["dispersion_lut"].astype(np.float32) if version >= 3
-                                    else np.ones((DISPERSION_LUT_SIZE, DISPERSION_LUT_SIZE, len(data["radii"])), np.float32)),
-                    codes=data["codes"].astype(np.float32),
-                    feature_mean=data["feature_mean"].astype(np.float32),
-                    components=data["components"].astype(np.float32),
-                    block_scale=data["block_scale"].astype(np.float32),
-                    presets=json.loads(str(data["presets_json"])),
-                    extractor=json.loads(str(data["extractor_json"])),
-                )
-        except (KeyError, ValueError, OSError) as exc:
+            data = np.load(io.BytesIO(path.read_bytes()), allow_pickle=False)
+            version = int(data["format_version"])
+            if version != FORMAT_VERSION and not (layout_only and version == 2):
+                raise PatternshopError(f"{path}: palette format {version}, this Patternshop reads {FORMAT_VERSION}")
+            missing = sorted(set(_STORED[version]) - set(data.files))
+            if missing:
+                raise KeyError(f"{', '.join(missing)} missing")
+            palette = object.__new__(cls)
+            object.__setattr__(palette, "_pending", _PendingArrays(path, data, version))
+            object.__setattr__(palette, "presets", json.loads(str(data["presets_json"])))
+            object.__setattr__(palette, "extractor", json.loads(str(data["extractor_json"])))
+            return palette
+        except _UNREADABLE as exc:
             raise PatternshopError(f"{path}: not a readable palette ({exc})") from exc
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        """A lazily loaded array (:meth:`load`), converted on first use and kept."""
+        pending = self.__dict__.get("_pending")
+        if pending is None or name not in _CONVERTERS:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        value = pending.convert(name)
+        object.__setattr__(self, name, value)
+        return value
+
+    def __getstate__(self) -> dict:
+        """Pickle the arrays themselves (all of them loaded), not the pending archive."""
+        for name in _CONVERTERS:
+            getattr(self, name)
+        return {name: value for name, value in self.__dict__.items() if name != "_pending"}
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the asset atomically (compressed npz; points as uint16, LUT and components as float16)."""
@@ -273,8 +290,28 @@ class Palette:
 
     # --- presets ----------------------------------------------------------
     def preset_ab(self) -> dict[str, tuple[float, float]]:
-        """Preset name -> chroma (a, b)."""
-        return {name: (float(p["a"]), float(p["b"])) for name, p in self.presets.items()}
+        """Preset name -> chroma (a, b), the merged names (:data:`MERGED_PRESETS`) left out."""
+        return {name: (float(p["a"]), float(p["b"])) for name, p in self.presets.items() if name not in MERGED_PRESETS}
+
+    def preset(self, name: str) -> tuple[float, float]:
+        """The chroma (a, b) of preset ``name``; a merged name (:data:`MERGED_PRESETS`) warns and gives its successor's.
+
+        Raises:
+            PatternshopError: no preset of that name (the message lists them).
+        """
+        known = self.preset_ab()
+        if name in MERGED_PRESETS and MERGED_PRESETS[name] in known:
+            import warnings
+
+            from synthesis.errors import PatternshopWarning
+
+            old = self.presets[name]
+            warnings.warn(f"preset {name!r} is merged into {MERGED_PRESETS[name]!r} (the palette cannot tell them apart); "
+                          f"its former colour is --ab {old['a']:g} {old['b']:g}", PatternshopWarning, stacklevel=2)
+            name = MERGED_PRESETS[name]
+        if name not in known:
+            raise PatternshopError(f"unknown preset {name!r}; presets: {', '.join(known)}")
+        return known[name]
 
     def nearest_preset(self, a: float, b: float) -> str:
         """Name of the preset whose chroma is nearest to (a, b)."""
@@ -291,6 +328,42 @@ def _bilinear(table: np.ndarray, z: np.ndarray) -> np.ndarray:
     ta, tb = t[..., 0, :], t[..., 1, :]
     return ((1 - ta) * (1 - tb) * table[i, j] + ta * (1 - tb) * table[i + 1, j]
             + (1 - ta) * tb * table[i, j + 1] + ta * tb * table[i + 1, j + 1]).astype(np.float32)
+
+
+_UNREADABLE = (KeyError, ValueError, OSError, zipfile.BadZipFile, zlib.error)
+# how each array is made from the stored ones (d: the archive, v: its format version)
+_CONVERTERS: dict[str, Callable[[Mapping[str, np.ndarray], int], np.ndarray]] = {
+    "radii": lambda d, v: d["radii"].astype(np.float64),
+    "lut": lambda d, v: d["lut"].astype(np.float32),
+    "exemplar_z": lambda d, v: d["exemplar_z"].astype(np.float64),
+    "exemplar_pcf": lambda d, v: d["exemplar_pcf"].astype(np.float32),
+    "exemplar_points": lambda d, v: d["exemplar_points"].astype(np.float64) / 65535.0,
+    "exemplar_spectrum": lambda d, v: d["exemplar_spectrum"].astype(np.float64),
+    "exemplar_dispersion": lambda d, v: (d["exemplar_dispersion"].astype(np.float32) if v >= 3
+                                         else np.ones(d["exemplar_pcf"].shape, np.float32)),
+    "dispersion_lut": lambda d, v: (d["dispersion_lut"].astype(np.float32) if v >= 3
+                                    else np.ones((DISPERSION_LUT_SIZE, DISPERSION_LUT_SIZE, len(d["radii"])), np.float32)),
+    "codes": lambda d, v: d["codes"].astype(np.float32),
+    "feature_mean": lambda d, v: d["feature_mean"].astype(np.float32),
+    "components": lambda d, v: d["components"].astype(np.float32),
+    "block_scale": lambda d, v: d["block_scale"].astype(np.float32),
+}
+_COMMON = ("format_version", "radii", "lut", "exemplar_z", "exemplar_pcf", "exemplar_points", "exemplar_spectrum", "codes",
+           "feature_mean", "components", "block_scale", "presets_json", "extractor_json")
+_STORED = {2: _COMMON, FORMAT_VERSION: _COMMON + ("exemplar_dispersion", "dispersion_lut")}  # members a palette must have
+
+
+class _PendingArrays:
+    """The stored arrays of a :meth:`Palette.load` not yet used (an in-memory archive, decompressed member by member)."""
+
+    def __init__(self, path: Path, data: Mapping[str, np.ndarray], version: int) -> None:
+        self.path, self.data, self.version = path, data, version
+
+    def convert(self, name: str) -> np.ndarray:
+        try:
+            return _CONVERTERS[name](self.data, self.version)
+        except _UNREADABLE as exc:
+            raise PatternshopError(f"{self.path}: not a readable palette ({exc})") from exc
 
 
 @functools.lru_cache(maxsize=4)

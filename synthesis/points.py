@@ -4,7 +4,11 @@ Coordinates are in the map's domain ``[0, w] x [0, h]`` with ``max(w, h) = 1``,
 origin at the top-left, y pointing down (as in images and SVG). Text files may
 separate columns by white space or commas, may carry ``#`` comments and a CSV
 header (``x,y`` or ``x,y,radius``). A comment ``# domain: W H`` sets the domain
-of a text file; it is written by :func:`write_points` and read back.
+of a text file, and ``# points_per_ink: P`` the scale the pattern was made at
+(points per unit area of full ink, :data:`synthesis.conventions.POINTS_PER_INK_MEANING`);
+both are written by :func:`write_points` into ``.txt`` files and read back.
+``.csv`` files are written as plain tables and ``.npy`` files have no header:
+they carry neither (domain: the unit square; scale: unknown).
 
 Every malformed input raises :class:`PointFileError` naming the file and line
 (or row, for ``.npy``).
@@ -26,6 +30,7 @@ from synthesis.errors import PointFileError, require_file
 TEXT_SUFFIXES = (".txt", ".csv", ".xy", ".pts")
 NPY_SUFFIX = ".npy"
 _DOMAIN_COMMENT = re.compile(r"^\s*domain\s*[:=]\s*(\S+)[\s,]+(\S+)\s*$", re.IGNORECASE)
+_SCALE_COMMENT = re.compile(r"^\s*points_per_ink\s*[:=]\s*(\S+)\s*$", re.IGNORECASE)
 _SEPARATORS = re.compile(r"\s*,\s*|\s+")
 _HEADER_NAMES = {"x", "y", "r", "radius"}
 _NPY_MAGIC = b"\x93NUMPY"
@@ -53,11 +58,14 @@ class PointSet:
         xy: (n, 2) float64 positions in ``[0, w] x [0, h]``, y down.
         domain: (w, h), longer side 1.
         radius: optional (n,) float64 dot radii (same units as ``xy``), >= 0.
+        points_per_ink: the scale the pattern was made at, points per unit area of full ink (> 0), when
+            known (a file's ``# points_per_ink: P`` comment; ``synthesize`` sets it); else None.
     """
 
     xy: np.ndarray
     domain: tuple[float, float] = (1.0, 1.0)
     radius: np.ndarray | None = None
+    points_per_ink: float | None = None
 
     def __post_init__(self) -> None:
         xy = np.asarray(self.xy, dtype=np.float64)
@@ -70,6 +78,8 @@ class PointSet:
             if radius.shape != (len(xy),):
                 raise PointFileError(f"{len(radius)} radii for {len(xy)} points")
             object.__setattr__(self, "radius", radius)
+        if self.points_per_ink is not None and not (math.isfinite(self.points_per_ink) and self.points_per_ink > 0):
+            raise PointFileError(f"points per ink must be a positive number, got {self.points_per_ink:g}")
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -92,9 +102,9 @@ def read_points(path: PathLike, domain: tuple[float, float] | None = None, allow
     require_file(path, "a point file", PointFileError)
     suffix = path.suffix.lower()
     if suffix == NPY_SUFFIX:
-        values, rows, file_domain = _parse_npy(path), None, None
+        values, rows, header = _parse_npy(path), None, _Header()
     elif suffix in TEXT_SUFFIXES:
-        values, rows, file_domain = _parse_text(path)
+        values, rows, header = _parse_text(path)
     else:
         raise PointFileError(f"{path}: unsupported point format '{path.suffix}' (use .txt, .csv or .npy)")
     if len(values) == 0:
@@ -102,12 +112,35 @@ def read_points(path: PathLike, domain: tuple[float, float] | None = None, allow
             raise PointFileError(f"{path}: no points (empty file)")
         values = np.empty((0, 2))
     try:
-        domain = check_domain(next(d for d in (domain, file_domain, (1.0, 1.0)) if d is not None))
+        domain = check_domain(next(d for d in (domain, header.domain, (1.0, 1.0)) if d is not None))
     except PointFileError as exc:
         raise PointFileError(f"{path}: {exc}") from None
     _check_values(path, values, rows, domain)
     radius = values[:, 2] if values.shape[1] == 3 else None
-    return PointSet(values[:, :2], domain, radius)
+    return PointSet(values[:, :2], domain, radius, header.points_per_ink)
+
+
+@dataclass
+class _Header:
+    """What a text file's comments say: ``# domain: W H`` and ``# points_per_ink: P`` (None: not said)."""
+
+    domain: tuple[float, float] | None = None
+    points_per_ink: float | None = None
+
+    def read(self, path: Path, number: int, comment: str) -> None:
+        """Take in one comment (the text after ``#``) of line ``number``."""
+        match = _DOMAIN_COMMENT.match(comment)
+        if match:
+            self.domain = _parse_domain_comment(path, number, match.groups())
+        match = _SCALE_COMMENT.match(comment)
+        if match:
+            try:
+                self.points_per_ink = float(match.group(1))
+                if not (math.isfinite(self.points_per_ink) and self.points_per_ink > 0):
+                    raise ValueError
+            except ValueError:
+                raise PointFileError(f"{path}:{number}: bad points_per_ink comment (need a positive number, got "
+                                     f"'{match.group(1)}')") from None
 
 
 def _where(path: Path, rows: list[int] | None, index: int) -> str:
@@ -115,8 +148,8 @@ def _where(path: Path, rows: list[int] | None, index: int) -> str:
     return f"{path}:{rows[index]}" if rows is not None else f"{path}: row {index + 1}"
 
 
-def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] | None]:
-    """Parse a text point file -> (n, 2|3) values, their 1-based line numbers, domain comment."""
+def _parse_text(path: Path) -> tuple[np.ndarray, list[int], _Header]:
+    """Parse a text point file -> (n, 2|3) values, their 1-based line numbers, header comments."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -127,15 +160,13 @@ def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] 
         return plain
     values: list[list[float]] = []
     rows: list[int] = []
-    domain = None
+    header = _Header()
     columns = 0
     # split at "\n" only: read_text already turned CRLF and CR into "\n", and
     # str.splitlines() would also break at form feeds and Unicode separators
     for number, line in enumerate(lines, start=1):
         content, _, comment = line.partition("#")
-        match = _DOMAIN_COMMENT.match(comment)
-        if match:
-            domain = _parse_domain_comment(path, number, match.groups())
+        header.read(path, number, comment)
         tokens = _split_fields(path, number, content)
         if not tokens:
             continue
@@ -154,25 +185,23 @@ def _parse_text(path: Path) -> tuple[np.ndarray, list[int], tuple[float, float] 
             bad = next(t for t in tokens if not _is_number(t))
             raise PointFileError(f"{path}:{number}: '{bad}' is not a number") from None
         rows.append(number)
-    return np.array(values, dtype=np.float64).reshape(-1, columns or 2), rows, domain
+    return np.array(values, dtype=np.float64).reshape(-1, columns or 2), rows, header
 
 
-def _parse_plain(path: Path, lines: list[str]) -> tuple[np.ndarray, list[int], tuple[float, float] | None] | None:
+def _parse_plain(path: Path, lines: list[str]) -> tuple[np.ndarray, list[int], _Header] | None:
     """Fast path for the common file: numbers only, one separator kind, whole-line comments; None otherwise.
 
     Anything unusual (a header, inline comments, mixed separators, a malformed
     line) returns None, and the line-by-line parser reads the file and names the
     line at fault.
     """
-    rows, data, domain = [], [], None
+    rows, data, header = [], [], _Header()
     for number, line in enumerate(lines, start=1):
         stripped = line.strip()
         if not stripped:
             continue
         if stripped.startswith("#"):
-            match = _DOMAIN_COMMENT.match(stripped[1:])
-            if match:
-                domain = _parse_domain_comment(path, number, match.groups())
+            header.read(path, number, stripped[1:])
             continue
         rows.append(number)
         data.append(stripped)
@@ -185,7 +214,7 @@ def _parse_plain(path: Path, lines: list[str]) -> tuple[np.ndarray, list[int], t
         values = np.loadtxt(data, delimiter="," if comma else None, dtype=np.float64, ndmin=2)
     except ValueError:
         return None
-    return (values, rows, domain) if values.shape[1] in (2, 3) else None
+    return (values, rows, header) if values.shape[1] in (2, 3) else None
 
 
 def _split_fields(path: Path, number: int, content: str) -> list[str]:
@@ -264,7 +293,8 @@ def _check_values(path: Path, values: np.ndarray, rows: list[int] | None, domain
 def write_points(points: PointSet, path: PathLike) -> None:
     """Write points atomically; the format follows the suffix (``.txt``, ``.csv``, ``.npy``).
 
-    ``.txt`` carries a ``# domain: W H`` comment; ``.csv`` a header ``x,y[,radius]``.
+    ``.txt`` carries a ``# domain: W H`` comment and, when known, ``# points_per_ink: P``; ``.csv`` only
+    a header ``x,y[,radius]`` (a plain table for spreadsheets, like ``.npy``: neither keeps domain nor scale).
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -281,6 +311,8 @@ def write_points(points: PointSet, path: PathLike) -> None:
         elif suffix in TEXT_SUFFIXES:
             names = "x y" if points.radius is None else "x y radius"
             header = f"patternshop points: {names}; origin top-left, y down\ndomain: {w:.9g} {h:.9g}"
+            if points.points_per_ink is not None:
+                header += f"\npoints_per_ink: {points.points_per_ink:.9g}"
             np.savetxt(tmp, table, fmt="%.9g", header=header)
         else:
             raise PointFileError(f"{path}: unsupported point format '{path.suffix}' (use .txt, .csv or .npy)")

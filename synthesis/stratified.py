@@ -49,18 +49,23 @@ def spatial_order(xy: np.ndarray, domain: tuple[float, float], order: int = 10) 
 
 
 def _cell_grid(density: np.ndarray, side_px: int, domain: tuple[float, float], n: int) -> tuple[int, np.ndarray]:
-    """Order of a 2^order grid over the unit square and its cells' density (2^order, 2^order), 0 outside the domain."""
+    """Order of a 2^order grid over the unit square and its cells' mass (2^order, 2^order): density x the cell's share
+    inside the domain (0 outside it)."""
     peak = float(density.max()) / max(float(density.mean()), 1e-12)
     area = domain[0] * domain[1]
     wanted = CELLS_PER_POINT * n * peak / area
     order = min(MAX_ORDER, max(4, math.ceil(0.5 * math.log2(max(wanted, 1.0)))))
     side = 1 << order
-    centres = (np.arange(side) + 0.5) / side
-    cx, cy = np.meshgrid(centres, centres, indexing="xy")
-    xy = np.stack([cx.reshape(-1), cy.reshape(-1)], axis=1)
-    values = sample_grid(density[..., None].astype(np.float64), xy, side_px)[:, 0]
-    inside = (xy[:, 0] < domain[0]) & (xy[:, 1] < domain[1])
-    return order, np.where(inside, np.maximum(values, 0.0), 0.0).reshape(side, side)
+    corners = np.arange(side) / side
+    cx, cy = np.meshgrid(corners, corners, indexing="xy")
+    # cells straddling the domain's edge count by their share inside it, sampled at their inside part's centre: a
+    # domain thinner than a cell (a 1 x 10000 px map) still has mass (before, no centre was inside and every point
+    # went to one corner)
+    lo = np.stack([cx.reshape(-1), cy.reshape(-1)], axis=1)
+    hi = np.minimum(lo + 1.0 / side, np.asarray(domain, np.float64))
+    share = np.prod(np.clip(hi - lo, 0.0, None), axis=1) * side * side
+    values = sample_grid(density[..., None].astype(np.float64), 0.5 * (lo + np.maximum(hi, lo)), side_px)[:, 0]
+    return order, (np.maximum(values, 0.0) * share).reshape(side, side)
 
 
 class StratifiedSampler:
@@ -82,8 +87,9 @@ class StratifiedSampler:
         strata = (np.arange(count) + rng.random(count)) / count * self.mass[-1]
         cell = self.along[np.minimum(np.searchsorted(self.mass, strata, side="right"), len(self.along) - 1)]
         row, col = np.divmod(cell, self.side)
-        xy = (np.stack([col, row], axis=1) + rng.random((count, 2))) / self.side
-        return np.minimum(xy, np.array(self.domain) * (1 - 1e-9))
+        lo = np.stack([col, row], axis=1) / self.side
+        extent = np.minimum(lo + 1.0 / self.side, np.asarray(self.domain)) - lo  # the cell's part inside the domain
+        return np.minimum(lo + rng.random((count, 2)) * extent, np.array(self.domain) * (1 - 1e-9))
 
 
 def random_points(density: np.ndarray, side_px: int, domain: tuple[float, float], n: int,

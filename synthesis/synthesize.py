@@ -21,7 +21,11 @@ the initial step, less often as the step decays (whenever the points could
 have moved as far as in ``refresh`` initial steps: 15 refreshes in 250
 iterations instead of 25).
 Points leaving the domain are mirrored back in, momentum reversed (a border is
-a mirror, not a wall that collects points). Every point stays within a leash
+a mirror, not a wall that collects points); so are points landing where the
+map has no ink, at the edge of the nearest inked pixel
+(:func:`hold_in_ink_reference`): the start is drawn on ink, but nothing else
+keeps a point there, and next to white its neighbours all lie on one side.
+Every point stays within a leash
 of ``leash`` local spacings (``x free_step`` where the target is not regular)
 of its start: the start matches the density at every scale (stratified), and
 the leash stops the local rearrangement that makes the texture from turning
@@ -38,15 +42,17 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from synthesis.errors import PatternshopError
+from synthesis.conventions import POINTS_PER_INK, full_ink_points
+from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.fields import DenominatorTracker, MapFields, sample_grid
-from synthesis.labmap import POINTS_PER_INK, LabMap
+from synthesis.labmap import LabMap
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
 from synthesis.workspace import Workspace
@@ -69,6 +75,13 @@ class Schedule:
 
 
 SCHEDULES = {"fast": Schedule("fast", iterations=250, refresh=10, step=0.05, final_step=0.01, free_step=3.0, leash=0.7)}
+# A run's figures are absurd (sound runs measured: constant, random, disc, text, line and 1 x 10000 maps, every preset):
+ABSURD_LOSS_GROWTH = 100.0  # a final loss this many times its start's (sound runs: at most 2.2x) ...
+LOSS_NOISE = 10.0  # ... or than this, whichever is larger (dead zones: a sound start can score 1.7e-5, its end 0.66)
+ABSURD_MISPLACED = 0.7  # points to move to match the density on coarse cells (sound runs: at most 0.16, clustered red;
+# all in one cell: 1 - 1 / cells, 0.875 for the 1 x 10000 map before its start was fixed; its density SSIM, 0.001, is
+# no test: a sound constant red map scores 0.04)
+CELL_POINTS = 25  # expected points per coarse cell of a uniform square map, at least (Poisson noise ~ 1 / 5)
 
 
 @dataclass
@@ -82,19 +95,60 @@ class SynthesisResult:
     setup_seconds: float
     losses: list[float] = field(default_factory=list)
     final_loss: float = math.nan
+    warnings: list[str] = field(default_factory=list)  # what :func:`absurd_run` found (also warned)
 
     def report(self) -> dict:
         return {"n": len(self.points), "schedule": self.schedule, "iterations": self.iterations,
                 "seconds": round(self.seconds, 3), "setup_seconds": round(self.setup_seconds, 3),
-                "final_loss": self.final_loss, "domain": list(self.points.domain)}
+                "final_loss": self.final_loss, "domain": list(self.points.domain), "warnings": list(self.warnings)}
+
+
+def misplaced_share(lab_map: LabMap, xy: np.ndarray) -> float:
+    """Share in [0, 1] of the points (n, 2) that would have to move for their counts on coarse cells to follow the
+    map's density (total variation distance). Cells are squares of 1/k of the longer side, ``k = sqrt(n / 25)``
+    clamped to 1..8 (:data:`CELL_POINTS`), so even a sound clustered sample stays well below :data:`ABSURD_MISPLACED`.
+    """
+    side = max(lab_map.width, lab_map.height)
+    k = min(8, max(1, math.isqrt(len(xy) // CELL_POINTS)))
+
+    def cells(size: int) -> np.ndarray:  # (k, size) float32: which cell each pixel of a row or column falls in
+        return (((np.arange(size) + 0.5) * k // side)[None, :] == np.arange(k)[:, None]).astype(np.float32)
+
+    expected = (cells(lab_map.height) @ lab_map.density() @ cells(lab_map.width).T).reshape(-1).astype(np.float64)
+    cell = np.clip((np.asarray(xy) * k).astype(np.int64), 0, k - 1)
+    observed = np.bincount(cell[:, 1] * k + cell[:, 0], minlength=k * k)
+    return 0.5 * float(np.abs(observed / len(xy) - expected / expected.sum()).sum())
+
+
+def absurd_run(start_loss: float, final: float, misplaced: float) -> list[str]:
+    """One message per figure no sound run gives (see :data:`ABSURD_LOSS_GROWTH`), each also warned as a
+    :class:`PatternshopWarning`: a final loss that is not finite or at least :data:`ABSURD_LOSS_GROWTH` x
+    max(``start_loss``, :data:`LOSS_NOISE`); a :func:`misplaced_share` of at least :data:`ABSURD_MISPLACED`.
+    """
+    messages = []
+    if not (math.isfinite(final) and final < ABSURD_LOSS_GROWTH * max(start_loss, LOSS_NOISE)):
+        messages.append(f"the synthesis failed: its final loss {final:.3g} is over {ABSURD_LOSS_GROWTH:g} x its "
+                        f"start's {start_loss:.3g}")
+    if not misplaced < ABSURD_MISPLACED:
+        messages.append(f"the synthesis failed: {misplaced:.0%} of the points would have to move to follow the "
+                        "map's density")
+    for message in messages:
+        warnings.warn(message, PatternshopWarning, stacklevel=2)
+    return messages
 
 
 def point_count(lab_map: LabMap, points_per_ink: float = POINTS_PER_INK) -> int:
-    """``round(points_per_ink * mean(1 - L/100))``; an all-white map is an error."""
-    n = int(round(points_per_ink * float(lab_map.density().mean())))
+    """``round(points_per_ink x w x h x mean(1 - L/100))``, ``points_per_ink`` per unit area of full ink
+    (:data:`synthesis.conventions.POINTS_PER_INK_MEANING`); an all-white map is an error."""
+    n = int(round(full_ink_points(points_per_ink, lab_map.domain) * float(lab_map.density().mean())))
     if n < 1:
         raise PatternshopError("the map is white everywhere (no ink): there is nothing to place points on")
     return n
+
+
+def points_per_ink_of(lab_map: LabMap, n: int) -> float:
+    """The points per unit area of full ink at which ``lab_map`` holds ``n`` points (:func:`point_count`'s inverse)."""
+    return n / full_ink_points(1.0, lab_map.domain) / max(float(lab_map.density().mean()), 1e-12)
 
 
 def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: MapFields | None = None) -> np.ndarray:
@@ -168,7 +222,7 @@ def synthesize(
     from synthesis.edgepcf import WindowSampler, find_neighbourhoods
     from synthesis.edgepcf_fast import FastObjective
     from synthesis.kernels import announce_compilation
-    from synthesis.step_fast import momentum_step
+    from synthesis.step_fast import hold_in_ink, momentum_step
     from synthesis.stratified import spatial_order
 
     start = time.perf_counter()
@@ -189,6 +243,8 @@ def synthesize(
     palette = palette or load_palette()
     fields = MapFields.build(lab_map, n, palette, guide=guide)
     xy = initial_points(lab_map, n, rng, fields)
+    if fields.nearest_ink is not None:  # a start drawn across a pixel edge into the white
+        hold_in_ink_reference(xy, np.zeros_like(xy), fields.nearest_ink, fields.ink_side_px)
     order = spatial_order(xy, fields.domain)  # points stay sorted in memory along a Hilbert curve while they move
     xy = xy[order]
     windows, denominators, workspace = WindowSampler(fields), DenominatorTracker(fields), Workspace()
@@ -219,6 +275,8 @@ def synthesize(
         travelled += rate / plan.step
         momentum_step(xy, first, gradient, start_xy, step_length, leash, rate, beta1, 1 - beta1 ** (step + 1),
                       math.sqrt(second / (1 - beta2 ** (step + 1))) + 1e-30, *fields.domain)
+        if fields.nearest_ink is not None:
+            hold_in_ink(xy, first, fields.nearest_ink, fields.ink_side_px)
         if on_iteration is not None:
             on_iteration(step + 1, xy)
         bar.set_postfix(loss=f"{loss:.4g}", refresh=False)
@@ -226,8 +284,10 @@ def synthesize(
     bar.close()
     points = np.empty_like(xy)
     points[order] = xy  # the start's order
-    return SynthesisResult(PointSet(points, fields.domain), plan.name, plan.iterations,
-                           time.perf_counter() - start, setup, losses, final_loss(fields, xy, denominators, workspace, windows))
+    final = final_loss(fields, xy, denominators, workspace, windows)
+    return SynthesisResult(PointSet(points, fields.domain, points_per_ink=points_per_ink_of(lab_map, n)), plan.name, plan.iterations,
+                           time.perf_counter() - start, setup, losses, final,
+                           absurd_run(losses[0] if losses else final, final, misplaced_share(lab_map, points)))
 
 
 def momentum_step_reference(xy: np.ndarray, first: np.ndarray, gradient: np.ndarray, start_xy: np.ndarray,
@@ -246,6 +306,30 @@ def momentum_step_reference(xy: np.ndarray, first: np.ndarray, gradient: np.ndar
     first[reflect(xy, (width, height))] *= -1.0  # a mirror reverses the momentum too
     away = xy - start_xy
     xy -= away * (1.0 - np.minimum(1.0, leash[:, None] / np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)))
+
+
+def hold_in_ink_reference(xy: np.ndarray, first: np.ndarray, nearest: np.ndarray, side_px: int) -> None:
+    """Send points (n, 2) off ink back onto it, in place; plain numpy (the reference of :func:`synthesis.step_fast.hold_in_ink`).
+
+    A point on a pixel without ink (``nearest``: (H, W, 2) int32 nearest inked pixel, see
+    :func:`synthesis.fields.nearest_ink`; ``side_px`` pixels per map unit) is mirrored at the edge of the nearest
+    inked pixel, or put on that edge where the mirror image would leave the pixel; its first moment (n, 2) reverses
+    on the axes it was sent back along. Ink's edge holds points as the border does: the objective has no term that
+    keeps them on ink (only the leash), and next to white a point's neighbours all lie on one side.
+    """
+    height, width, _ = nearest.shape
+    pixel = np.stack([np.clip((xy[:, 1] * side_px).astype(np.int64), 0, height - 1),
+                      np.clip((xy[:, 0] * side_px).astype(np.int64), 0, width - 1)], axis=1)
+    target = nearest[pixel[:, 0], pixel[:, 1]]
+    off = np.flatnonzero((target != pixel).any(axis=1))
+    lo = target[off, ::-1] / side_px  # (x, y) of the inked pixel's corner
+    hi = lo + 1.0 / side_px
+    edge = np.clip(xy[off], lo, hi)
+    mirrored = 2.0 * edge - xy[off]
+    inside = (mirrored >= lo) & (mirrored < hi)
+    held = np.where(inside.all(axis=1, keepdims=True), mirrored, np.minimum(edge, np.nextafter(hi, 0.0)))
+    first[off] = np.where(edge != xy[off], -first[off], first[off])
+    xy[off] = held
 
 
 def final_loss(fields: MapFields, xy: np.ndarray, denominators: DenominatorTracker | None = None,

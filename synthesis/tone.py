@@ -51,7 +51,7 @@ def dot_sizes(points: PointSet, lab_map: LabMap, width_px: int = 512) -> PointSe
     for _ in range(REFINE_STEPS):
         rendered = _sample(tone_image(PointSet(points.xy, points.domain, radius), width_px, blur), points.xy, width_px, w)
         radius = radius * np.sqrt(np.clip(wanted, 1e-3, 1) / np.clip(rendered, 1e-3, 1)).clip(0.5, 2.0)
-    return PointSet(points.xy, points.domain, radius)
+    return PointSet(points.xy, points.domain, radius, points.points_per_ink)
 
 
 def _resample(image: np.ndarray, width_px: int, w: float, h: float) -> np.ndarray:

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from importlib import metadata
-
 
 def package_version() -> str:
     """Version of the installed ``patternshop`` distribution ("unknown" when not installed)."""
+    from importlib import metadata  # here, not at import: it takes tens of ms and most imports never ask
+
     try:
         return metadata.version("patternshop")
     except metadata.PackageNotFoundError:

@@ -230,11 +230,12 @@ def test_from_image_tone_and_correlation(tmp_path):
 def test_infer_gives_a_map_on_the_patterns_domain():
     pattern = ps.synthesize(ps.uniform_map(32, 16, density=0.6), points=600, iterations=3).points
     model = ps.load_model()
-    inference = ps.infer(pattern, model=model, points_per_ink=1000, width=40, symmetries=1, denoise=False)
+    inference = ps.infer(pattern, model=model, points_per_ink=2000, width=40, symmetries=1, denoise=False)
     assert isinstance(inference, ps.Inference) and inference.lab_map.lab.shape == (20, 40, 3)
-    assert inference.scale.points_per_ink == 1000 and not inference.scale.automatic
-    assert inference.lab_map.density().mean() == pytest.approx(0.6, abs=0.1)  # calibrated: 600 points at 1000 per ink
-    assert ps.infer_scale(pattern).automatic
+    assert inference.scale.points_per_ink == 2000 and not inference.scale.automatic
+    assert inference.lab_map.density().mean() == pytest.approx(0.6, abs=0.1)  # calibrated: 600 points at 2000 per unit area on 1 x 0.5
+    assert ps.infer_scale(pattern).points_per_ink == pytest.approx(2000)  # synthesize recorded its scale
+    assert ps.infer_scale(ps.PointSet(pattern.xy, pattern.domain)).automatic
     with pytest.raises(PatternshopError, match="width must be"):
         ps.infer(pattern, model=model, width=0)
 

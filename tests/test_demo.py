@@ -36,10 +36,11 @@ def tiny_onnx(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def test_bundled_points_are_the_logo_at_20000_points_per_ink():
+def test_bundled_points_are_the_logo_at_30000_points_per_ink():
     points = read_points(ROOT / "examples" / "logo_points.txt")
     assert points.domain == pytest.approx((1.0, 2.0 / 3.0))
-    assert 5000 < len(points) < 9000  # 20,000 x the logo's mean density (0.36)
+    assert 5000 < len(points) < 9000  # 30,000 per unit area x the logo's area (2/3) x its mean density (0.36)
+    assert points.points_per_ink == pytest.approx(30_000, rel=1e-3)  # its header: infer reads it at that scale
     assert (ROOT / "examples" / "logo_points.txt").stat().st_size < 300_000
 
 

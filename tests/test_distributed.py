@@ -21,7 +21,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from test_pairs import folder_of_images, pair_config, same_pairs, save_grey
+from upath import UPath
 
 from data_gen import pairs as pairs_module
 from data_gen.corpus import CorpusConfig, build_corpus
@@ -104,10 +106,15 @@ def test_task_that_kills_every_worker_comes_back_lost(cluster):
     assert "tcp://" in lost[0].error and "Inspecting" not in lost[0].error  # the last worker's address, not Dask's advice
 
 
+def test_local_pool_stops_when_a_worker_dies():
+    with pytest.raises(PatternshopError, match=r"a worker process died \(exit code 1"):
+        list(Executor(workers=2).map_unordered(_exit_on_three, list(range(5))))
+
+
 # --- pairs ------------------------------------------------------------------------
 def test_pairs_on_dask_match_the_local_pool(cluster, images, reference, tmp_path):
     out = tmp_path / "pairs"
-    summary = generate(pair_config(images, out, *on_dask(cluster[0])))
+    summary = generate(pair_config(images, f"file://{out}", *on_dask(cluster[0])))  # an fsspec URL
     assert summary["made_now"] == ITEMS and summary["skipped_now"] == []
     same_pairs(load_pairs(out), reference)
     assert read_manifest(out)["runs"][-1]["executor"] == f"dask {cluster[0]}"
@@ -192,16 +199,43 @@ def test_bad_source_on_dask_is_skipped_with_its_error(cluster, tmp_path):
     assert [entry["item"] for entry in read_manifest(tmp_path / "pairs")["skipped"]] == [2]
 
 
+def test_pair_folder_at_a_memory_url_resumes_and_trains(images, reference, tmp_path, monkeypatch):
+    from patternshop_nn.data import PairDataModule
+
+    url = f"memory://{tmp_path.name}/pairs"
+    merge = pairs_module.merge_chunk
+
+    def interrupt_after_first_shard(*args):
+        merge(*args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pairs_module, "merge_chunk", interrupt_after_first_shard)
+    with pytest.raises(KeyboardInterrupt):
+        generate(pair_config(images, url))
+    monkeypatch.undo()
+    summary = generate(pair_config(images, url))
+    assert summary["made_now"] == ITEMS - 2 and summary["pairs_in_folder"] == ITEMS and summary["out_dir"] == url
+    same_pairs(load_pairs(url), reference)
+    assert read_manifest(url)["pairs"] == ITEMS and not list(UPath(url, "parts").iterdir())
+    data = PairDataModule(url, val_fraction=0.25, baselines=False)
+    data.setup()
+    assert len(data.train_set) == 6 and len(data.val_set) == 2
+
+
 # --- palette corpus and convert -----------------------------------------------------
-def test_corpus_on_dask_matches_local(cluster, tmp_path):
+def test_corpus_on_dask_and_in_memory_matches_local(cluster, tmp_path):
     config = CorpusConfig(exemplars=4, points=256, fit_iterations=5, chunk=2)
     local = build_corpus(config, tmp_path / "local", Executor(workers=1))
     remote = build_corpus(config, tmp_path / "dask", Executor(DASK, scheduler=cluster[0]))
+    stored = build_corpus(config, f"memory://{tmp_path.name}/cache", Executor(DASK, scheduler=cluster[0]))
+    again = build_corpus(config, f"memory://{tmp_path.name}/cache", Executor(DASK, scheduler=cluster[0]))
+    assert again["computed_now"] == 0
     for name in ("index", "target", "points", "realised", "fit_rms", "pcf", "features"):
-        np.testing.assert_array_equal(local[name], remote[name], err_msg=name)
+        for other in (remote, stored, again):
+            np.testing.assert_array_equal(local[name], other[name], err_msg=name)
 
 
-def test_convert_on_dask_matches_local(cluster, tmp_path):
+def test_convert_on_dask_matches_local(cluster, tmp_path, capsys):
     from export.convert import WRITTEN, convert_points
     from export.runtime import OnnxModel
     from patternshop_nn.networks import DualBranchUNet
@@ -219,8 +253,12 @@ def test_convert_on_dask_matches_local(cluster, tmp_path):
     local = convert_points(sources, tmp_path / "local", OnnxModel(model), batch_size=2, workers=1)
     remote = convert_points(sources, tmp_path / "dask", OnnxModel(model), batch_size=2, scheduler=cluster[0])
     assert [r.status for r in local] == [r.status for r in remote] == [WRITTEN] * 3
+    status, _, err = run_cli(["convert", str(tmp_path / "points"), str(tmp_path / "cli"), "--model", str(model),
+                              "--scheduler", cluster[0], "--batch-size", "2", "--no-progress"], capsys)
+    assert status == 0 and "wrote 3 of 3 files" in err
     for name in ("a", "b", "c"):
-        assert (tmp_path / "local" / f"{name}.tif").read_bytes() == (tmp_path / "dask" / f"{name}.tif").read_bytes()
+        expected = (tmp_path / "local" / f"{name}.tif").read_bytes()
+        assert (tmp_path / "dask" / f"{name}.tif").read_bytes() == expected == (tmp_path / "cli" / f"{name}.tif").read_bytes()
 
 
 # --- training on several processes ----------------------------------------------------

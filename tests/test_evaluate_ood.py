@@ -81,10 +81,10 @@ def test_a_checkpoint_needs_its_training_scale(tmp_path: Path, capsys: pytest.Ca
 
 
 def test_kde_reads_a_non_square_pattern_at_the_synthesisers_scale() -> None:
-    """n = points_per_ink x mean density on a 1 x 0.5 domain: the KDE reads density 0.5 (L 50)."""
+    """n = points_per_ink x area x mean density on a 1 x 0.5 domain: the KDE reads density 0.5 (L 50)."""
     points_per_ink = ood.points_per_ink_of(20_000, np.full((10, 20), 0.5))
     xy = np.random.default_rng(0).random((20_000, 2)) * [1.0, 0.5]
-    assert points_per_ink == 40_000
+    assert points_per_ink == 80_000
     assert ood.kde_L(xy, (128, 256), points_per_ink, 4.0)[20:-20, 20:-20].mean() == pytest.approx(50, abs=1)
 
 

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from patternshop.commands import GIGABYTE, check_palette_file, positive_float, positive_int, seed
-from synthesis.conventions import POINTS_PER_INK
+from synthesis.conventions import POINTS_PER_INK, POINTS_PER_INK_MEANING
 
 EXIT_SOME_FAILED = 1
 
@@ -58,8 +58,8 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                          help="keep L's fine detail even where it is only noise, about twice as fast (default: L smoothed "
                          "where its detail is noise, as infer does, from two more network readings per file)")
     convert.add_argument("--points-per-ink", type=positive_float, metavar="K",
-                         help=f"points of a fully dark map: the scale point files are read at (default: chosen per file "
-                         f"as infer does, {POINTS_PER_INK} unless the pattern is denser), and maps synthesised at with "
+                         help=f"{POINTS_PER_INK_MEANING}: the scale point files are read at (default: per file as infer "
+                         f"does, the header's '# points_per_ink:', else {POINTS_PER_INK} unless the pattern is denser), and maps synthesised at with "
                          f"--resynthesize (default {POINTS_PER_INK}, as synthesize)")
     synthesis = convert.add_argument_group("maps to points (--resynthesize), as in 'patternshop synthesize'")
     synthesis.add_argument("--resynthesize", action="store_true", help="synthesise points for maps instead of inferring maps")

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
 
 from patternshop.commands import check_map_output, check_output
+from synthesis.conventions import POINTS_PER_INK_MEANING
 
 DESCRIPTION = """\
 Make a map from a photo (any image Pillow reads: 8/16-bit grey, RGB, RGBA,
@@ -41,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         "from-image",
         parents=[common],
         help="make a map from a photo: L from linear luminance, correlation from a preset, labels or a mask",
-        description=DESCRIPTION,
+        description=DESCRIPTION + "\n\n" + textwrap.fill(f"--points-per-ink of 'synthesize': {POINTS_PER_INK_MEANING}.", 79),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -86,8 +88,8 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
 
 def run_from_image(args: argparse.Namespace) -> None:
     from patternshop import api
+    from synthesis.conventions import POINTS_PER_INK, full_ink_points
     from synthesis.errors import PatternshopError
-    from synthesis.labmap import POINTS_PER_INK
     from synthesis.mapio import write_map, write_preview
 
     if args.label and not args.labels:
@@ -100,9 +102,6 @@ def run_from_image(args: argparse.Namespace) -> None:
     inputs = [p for p in (args.photo, args.labels, args.mask) if p]
     output = check_map_output(args.output, *inputs)
     preview = check_output(args.preview, *inputs, args.output, suffixes=(".png",)) if args.preview else None
-    for path in (output, preview):
-        if path is not None and not path.parent.is_dir():
-            raise PatternshopError(f"{path}: folder {path.parent} does not exist")
 
     label_correlations = {}
     for spec in args.label:
@@ -126,6 +125,7 @@ def run_from_image(args: argparse.Namespace) -> None:
     w, h = lab_map.domain
     density = float(lab_map.density().mean())
     print(f"wrote {output} ({lab_map.width}x{lab_map.height} px, domain {w:.4g} x {h:.4g}; mean density {density:.3f}: "
-          f"'synthesize' makes ~{round(POINTS_PER_INK * density):,} points by default, fewer with --points)",
+          f"'synthesize' makes ~{round(full_ink_points(POINTS_PER_INK, lab_map.domain) * density):,} points by default, "
+          "fewer with --points)",
           file=sys.stderr)
 

@@ -8,7 +8,7 @@ import sys
 
 from patternshop.commands import (add_threads_option, check_map_output, check_memory, check_output, check_point_file,
                                   non_negative_int, positive_float, positive_int)
-from synthesis.conventions import POINTS_PER_INK
+from synthesis.conventions import POINTS_PER_INK, POINTS_PER_INK_MEANING
 from synthesis.resources import export_check_bytes, inference_bytes
 
 
@@ -20,8 +20,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         help="infer the map (density and correlation) of a point pattern with the network",
         description="Run the points-to-map network (ONNX Runtime, CPU) on a point file and write its map: "
         "L from the local density, a,b from the local correlation. The pattern is read at the synthesiser's "
-        "scale (--points-per-ink points make a fully dark map, so 'synthesize' of the map gives back as many "
-        "points; without --points-per-ink, 50,000 unless the pattern is denser somewhere, then the scale at which its "
+        "scale (--points-per-ink points per unit area of full ink, so 'synthesize' of the map gives back as many "
+        "points; without --points-per-ink, the '# points_per_ink:' the file's header records (synthesize writes it into "
+        ".txt files), else 50,000 unless the pattern is denser somewhere, then the scale at which its "
         "densest 1% reads as full ink: the chosen scale is printed) and rasterised so that its points per pixel match "
         "the network's training, mirrored 32 raster pixels beyond the domain's border. The ink is then scaled so that "
         "the map holds the pattern's point count (an empty pattern gives a white map). Where the points are regular "
@@ -45,8 +46,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        help="domain [0,W]x[0,H] of the points, max(W,H)=1 (default: the file's '# domain:' comment, else 1 1)")
     infer.add_argument("--width", type=positive_int, metavar="PX", help="resample the map to this width (default: 256 px on the long side)")
     infer.add_argument("--points-per-ink", type=positive_float, metavar="N",
-                       help=f"points of a fully dark map at the pattern's scale (default: {POINTS_PER_INK}, as synthesize, "
-                       "raised automatically for a pattern denser than that)")
+                       help=f"{POINTS_PER_INK_MEANING}, at the pattern's scale (default: the file header's "
+                       f"'# points_per_ink:', else {POINTS_PER_INK} as synthesize, raised automatically for a pattern denser "
+                       "than that)")
     infer.add_argument("--no-fill", action="store_true",
                        help="keep the network's a,b: no zoomed reading of light areas, no fill where too few points show "
                        "correlation or the map holds no ink (default: both)")

@@ -11,7 +11,7 @@ from patternshop.commands import (add_threads_option, check_memory, check_output
                                   non_negative_float, positive_float, positive_int, seed)
 from synthesis.atomic import all_or_nothing, atomic_write_text
 from synthesis.resources import render_bytes, synthesis_bytes
-from synthesis.conventions import POINTS_PER_INK
+from synthesis.conventions import POINTS_PER_INK, POINTS_PER_INK_MEANING
 from synthesis.errors import PatternshopError
 
 
@@ -24,7 +24,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         help="synthesise a point pattern from a map",
         description="Place points so that their density follows the map's L channel and their correlation "
         "its a,b colour (edge-aware PCF matching, paper §6). The point count defaults to "
-        "points-per-ink x mean density (50,000 x mean(1 - L/100)).",
+        "points-per-ink x area x mean density (50,000 x area x mean(1 - L/100)). A .txt output records the "
+        "points per ink in its header (# points_per_ink: P, also with --points), so that 'infer' reads it at "
+        "that scale; .csv and .npy outputs carry no header.",
     )
     parser.add_argument("map", help="input map (CIELAB/ICCLAB TIFF, channel PNGs NAME.L.png, or an sRGB image)")
     parser.add_argument("output", help="output points (.txt, .csv or .npy)")
@@ -32,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     parser.add_argument("--png", metavar="FILE", help="also write a PNG rendering")
     parser.add_argument("--points", type=positive_int, metavar="N", help="number of points (default: from the ink)")
     parser.add_argument("--points-per-ink", type=positive_float, default=POINTS_PER_INK, metavar="K",
-                        help=f"points for a fully black map (default {POINTS_PER_INK})")
+                        help=f"{POINTS_PER_INK_MEANING} (default {POINTS_PER_INK})")
     parser.add_argument("--schedule", choices=("fast",), default="fast", help="optimisation schedule (only fast: 250 iterations, every point a centre at each)")
     parser.add_argument("--iterations", type=positive_int, metavar="K", help="override the schedule's iteration count")
     parser.add_argument("--seed", type=seed, default=0, help="random seed, 0 to 2^32-1 (default 0); same seed, same points")
@@ -89,7 +91,7 @@ def run_synthesize(args: argparse.Namespace) -> None:
     lab_map = api.read_map(args.map)
     n = args.points if args.points is not None else api.point_count(lab_map, args.points_per_ink)
     check_memory(args, synthesis_bytes(pixels, n), f"synthesis of {n:,} points"
-                 + ("" if args.points is not None else f" ({args.points_per_ink:g} points per ink x mean density)"))
+                 + ("" if args.points is not None else f" ({args.points_per_ink:g} points per ink x area x mean density)"))
     def write_preview(done: int, total: int, xy) -> None:  # noqa: ANN001 - (n, 2) array
         if done % args.preview_every == 0:
             api.write_points(api.PointSet(xy.copy(), lab_map.domain), preview)
@@ -113,5 +115,5 @@ def run_synthesize(args: argparse.Namespace) -> None:
                           min_radius_mm=args.min_radius, max_radius_mm=args.max_radius)
         if report_path is not None:
             atomic_write_text(report_path, json.dumps(report, indent=2) + "\n")
-    print(f"wrote {output}: {report['n']} points in {report['seconds']:.1f} s ({report['iterations']} iterations, "
+    print(f"wrote {output}: {report['n']} points ({points.points_per_ink:,.0f} points per ink) in {report['seconds']:.1f} s ({report['iterations']} iterations, "
           f"final loss {report['final_loss']:.4g}, density SSIM {report['ssim']:.3f})", file=sys.stderr)

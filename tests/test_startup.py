@@ -1,0 +1,84 @@
+"""Start-up (issue 27): the synthesis path imports only what it needs and reads only the palette tables it uses.
+
+Nothing here is timed: ``bench/bench_speed.py`` measures the start-up (its start-up section).
+"""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import zipfile
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from synthesis.errors import PatternshopError
+from synthesis.labmap import LabMap
+from synthesis.palette import DEFAULT_PALETTE, Palette
+
+ROOT = Path(__file__).resolve().parent.parent
+HEAVY_MODULES = ("torch", "matplotlib", "sklearn")  # decoding, plotting and training only
+SYNTHESIS_TABLES = {"radii", "lut", "dispersion_lut"}  # the palette arrays synthesis reads
+shipped = pytest.mark.skipif(not DEFAULT_PALETTE.exists(), reason="no shipped palette asset")
+
+
+@shipped
+def test_synthesis_path_imports_no_torch_matplotlib_or_sklearn(tmp_path):
+    code = ("import sys\n"
+            "from patternshop.cli import main\n"
+            f"status = main(['synthesize', {str(ROOT / 'examples' / 'logo.tif')!r}, {str(tmp_path / 'p.txt')!r},"
+            " '--points', '300', '--iterations', '2', '--no-progress'])\n"
+            "import patternshop as ps\n"
+            "ps.synthesize(ps.uniform_map(32, density=0.5, correlation='red'), points=300, iterations=2)\n"
+            f"print(status, sorted(m for m in {HEAVY_MODULES!r} if m in sys.modules))\n")
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split("\n")[-2] == "0 []"
+
+
+@shipped
+def test_synthesis_reads_only_the_palette_tables_it_uses():
+    from synthesis.synthesize import synthesize
+
+    palette = Palette.load()
+    lab = np.zeros((32, 32, 3), np.float32)
+    lab[..., 0] = 50.0
+    lab[:, 16:, 1:] = palette.preset_ab()["red"]
+    synthesize(LabMap(lab), n=300, palette=palette, iterations=2)
+    loaded = {field.name for field in fields(Palette)} & set(vars(palette))
+    assert loaded - {"presets", "extractor"} <= SYNTHESIS_TABLES
+
+
+@shipped
+def test_lazy_palette_arrays_are_the_stored_ones_and_pickle_whole():
+    palette = Palette.load()
+    with np.load(DEFAULT_PALETTE) as stored:
+        assert palette.lut.dtype == np.float32 and np.array_equal(palette.lut, stored["lut"].astype(np.float32))
+        assert np.array_equal(palette.exemplar_points, stored["exemplar_points"].astype(np.float64) / 65535.0)
+    clone = pickle.loads(pickle.dumps(Palette.load()))
+    assert "_pending" not in vars(clone)
+    for field in fields(Palette):
+        mine, theirs = getattr(palette, field.name), getattr(clone, field.name)
+        assert np.array_equal(mine, theirs) if isinstance(mine, np.ndarray) else mine == theirs
+    with pytest.raises(AttributeError):
+        palette.no_such_table  # noqa: B018
+
+
+@shipped
+def test_a_damaged_table_is_a_palette_error_when_it_is_read(tmp_path):
+    damaged, short = tmp_path / "damaged.npz", tmp_path / "short.npz"
+    with zipfile.ZipFile(DEFAULT_PALETTE) as source, zipfile.ZipFile(damaged, "w") as out, zipfile.ZipFile(short, "w") as cut:
+        for name in source.namelist():
+            data = source.read(name)
+            out.writestr(name, data[: len(data) // 2] if name == "components.npy" else data)  # cut short
+            if name != "dispersion_lut.npy":
+                cut.writestr(name, data)
+    palette = Palette.load(damaged)  # loads: the damaged table is not read yet
+    assert palette.lut.shape[:2] == (256, 256)
+    with pytest.raises(PatternshopError, match="not a readable palette"):
+        palette.components  # noqa: B018
+    with pytest.raises(PatternshopError, match="dispersion_lut missing"):
+        Palette.load(short)
