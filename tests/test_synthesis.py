@@ -282,7 +282,7 @@ def test_cli_synthesize_writes_points_png_svg_and_report(tmp_path, capsys):
     circles = ET.parse(tmp_path / "p.svg").getroot().findall(".//{http://www.w3.org/2000/svg}circle")
     assert len(circles) == 600
     assert (tmp_path / "p.png").stat().st_size > 0
-    assert len(out.read_text().splitlines()) == 602  # two header comments + points (with radii)
+    assert len(out.read_text().splitlines()) == 603  # three header comments (layout, domain, points per ink) + points (with radii)
 
 
 def test_cli_synthesize_white_map_is_one_line_error(tmp_path, capsys):
