@@ -129,6 +129,7 @@ def main() -> None:
     parser.add_argument("--maps", type=int, default=8)
     parser.add_argument("--size", type=int, default=256)
     parser.add_argument("--sheet-maps", type=int, default=4, help="maps shown in the picture sheet")
+    parser.add_argument("--timing-sizes", type=int, nargs="*", default=[256, 1024], help="map sides to time expansion on")
     args = parser.parse_args()
     content_aware_fill(np.zeros((16, 16, 3), np.float32), np.eye(16, dtype=bool), patch=3)  # compile the kernels
     rows, sheet = [], []
@@ -158,7 +159,7 @@ def main() -> None:
             summary.setdefault(name, {})[metric] = {
                 "median": statistics.median(r[name][metric] for r in rows),
                 "wins_over_all_others": sum(all(r[name][metric] < r[o][metric] for o in others) for r in rows)}
-    timings = {f"{size}px": expansion_seconds(size) for size in (256, 1024)}
+    timings = {f"{size}px": expansion_seconds(size) for size in args.timing_sizes}
     print(f"\n{'method':14s} {'W1 median':>10s} {'wins':>5s} {'spectrum median':>16s} {'wins':>5s}")
     for name in METHODS:
         h, s = summary[name]["histogram_w1"], summary[name]["spectrum_log_ratio"]

@@ -17,9 +17,11 @@ from PIL import Image
 
 from synthesis.errors import PatternshopError, require_file
 from synthesis.labmap import AB_RANGE, L_RANGE, LabMap
+from synthesis.patchfill import content_aware_fill
 from synthesis.photo import check_ab
 
 GRADIENT_MODES = ("set", "multiply")
+FILL_MODES = ("edge", "content-aware")  # expand's fills besides a colour
 
 PathLike = str | os.PathLike
 
@@ -123,20 +125,29 @@ def density_gradient(lab_map: LabMap, start: tuple[float, float], end: tuple[flo
     return LabMap(lab)
 
 
-def expand(lab_map: LabMap, margins: tuple[int, int, int, int], fill: tuple[float, float, float] | None = None) -> LabMap:
+def expand(lab_map: LabMap, margins: tuple[int, int, int, int],
+           fill: tuple[float, float, float] | str | None = None, *, seed: int = 0) -> LabMap:
     """The map on a larger canvas: ``margins`` = (left, top, right, bottom) pixels added.
 
-    The new pixels take ``fill`` = (L, a, b), or repeat the nearest edge pixel when ``fill`` is None.
-    The domain grows with the canvas (its long side is 1 again).
+    The new pixels take ``fill`` = (L, a, b); or repeat the nearest edge pixel when ``fill`` is None or ``"edge"``;
+    or, with ``"content-aware"``, more of the map's texture (:func:`synthesis.patchfill.content_aware_fill`,
+    deterministic for a ``seed``). The domain grows with the canvas (its long side is 1 again).
     """
     left, top, right, bottom = (int(m) for m in margins)
     if min(left, top, right, bottom) < 0:
         raise PatternshopError(f"margins must be >= 0 pixels, got {left}, {top}, {right}, {bottom}")
     padding = ((top, bottom), (left, right), (0, 0))
-    if fill is not None and not (L_RANGE[0] <= fill[0] <= L_RANGE[1] and all(AB_RANGE[0] <= v <= AB_RANGE[1] for v in fill[1:])):
-        raise PatternshopError(f"fill needs L in [0, 100] and a, b in [-128, 127], got {', '.join(f'{float(v):g}' for v in fill)}")
-    if fill is None:
+    if isinstance(fill, str) and fill not in FILL_MODES:
+        raise PatternshopError(f"fill must be (L, a, b) or one of {', '.join(FILL_MODES)}, got {fill!r}")
+    if fill == "content-aware":
+        edge = np.pad(lab_map.lab, padding, mode="edge")
+        hole = np.ones(edge.shape[:2], bool)
+        hole[top : top + lab_map.height, left : left + lab_map.width] = False
+        return LabMap(content_aware_fill(edge, hole, seed=seed))
+    if fill is None or fill == "edge":
         return LabMap(np.pad(lab_map.lab, padding, mode="edge"))
+    if not (L_RANGE[0] <= fill[0] <= L_RANGE[1] and all(AB_RANGE[0] <= v <= AB_RANGE[1] for v in fill[1:])):
+        raise PatternshopError(f"fill needs L in [0, 100] and a, b in [-128, 127], got {', '.join(f'{float(v):g}' for v in fill)}")
     expanded = np.empty((lab_map.height + top + bottom, lab_map.width + left + right, 3), np.float32)
     expanded[...] = np.asarray(fill, np.float32)
     expanded[top : top + lab_map.height, left : left + lab_map.width] = lab_map.lab

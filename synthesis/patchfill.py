@@ -4,12 +4,15 @@ Content-Aware Fill in the paper's Fig. 9, pattern expansion).
 The hole is filled with more of the known map's texture, not with a smooth continuation: every
 ``patch`` x ``patch`` patch that touches the hole is matched to a patch lying wholly in the known
 region (its nearest neighbour in the sum of squared L, a, b differences), and each hole pixel becomes
-the weighted mean of what the patches covering it propose (Wexler, Shechtman and Irani 2007,
-"Space-Time Completion of Video"). Matches are found with PatchMatch (Barnes et al. 2009):
+what the best-matching patch covering it proposes (the EM scheme of Wexler, Shechtman and Irani 2007,
+"Space-Time Completion of Video", with the sharpest vote: a weighted mean blurs the grain and lost on
+bench/bench_fill.py). Matches are found with PatchMatch (Barnes et al. 2009):
 propagation from the four neighbouring patches, one random source anywhere, and a random search in
 a window halving from the whole map. This runs coarse to fine on a pyramid of 2x2 means, the
 coarsest level at least ``coarsest`` pixels a side, so large structures (clearings, forest edges)
-continue and the finer levels add the grain; each level starts from the coarser one's matches.
+continue and the finer levels add the grain. The coarsest hole starts as a random tiling of known
+patches (edge repetition's streaks or a flat colour are local minima the EM keeps); each finer level
+starts from the coarser one's matches, drawn at twice the size by a mean vote.
 L, a and b are matched and filled jointly, so correlation regions continue with the texture.
 
 Shapes and ranges: maps are (H, W, 3) float32 CIELAB (L in [0, 100], a, b in [-128, 127]); a hole
@@ -24,7 +27,6 @@ column) of the source patch for target patch i at (ty[i], tx[i]).
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from synthesis import patchfill_fast as fast
 from synthesis.errors import PatternshopError
@@ -33,7 +35,6 @@ PATCH = 7  # patch side, pixels
 COARSEST = 32  # the coarsest level's short side is at least this, pixels
 ITERATIONS = (8, 2)  # EM iterations (match, vote) at the coarsest and the finest level, linear in between
 PASSES = 2  # PatchMatch passes per EM iteration
-CHROMA = 1.0
 
 
 def _patch_distances(image: np.ndarray, patch: int, ty: np.ndarray, tx: np.ndarray, sy: np.ndarray,
@@ -101,22 +102,31 @@ def search_reference(image: np.ndarray, patch: int, ty: np.ndarray, tx: np.ndarr
 
 
 def vote_reference(image: np.ndarray, patch: int, hy: np.ndarray, hx: np.ndarray, tid: np.ndarray, nnf: np.ndarray,
-                   weight: np.ndarray, out: np.ndarray) -> None:
-    """One vote: ``out`` (M, 3) float32 for the hole pixels (hy, hx) (M,), each the ``weight``-ed mean over the target
-    patches covering it of the pixel at the same place in their matches (``tid``, ``nnf`` as in :func:`search_reference`,
-    ``weight`` (N,) float64 > 0)."""
+                   weight: np.ndarray, sharp: bool, out: np.ndarray) -> None:
+    """One vote: ``out`` (M, 3) float32 for the hole pixels (hy, hx) (M,) from the target patches covering each (``tid``,
+    ``nnf`` as in :func:`search_reference`): the pixel at the same place in their matches, ``weight`` (N,) float64-ed.
+
+    ``sharp`` False: the weighted mean (weights > 0); True: the value proposed by the covering patch of largest weight
+    (the first in (dy, dx) scan order on ties), which keeps the texture's grain where a mean would blur it.
+    """
     positions_y, positions_x = tid.shape
     acc = np.zeros((len(hy), image.shape[2]))
     total = np.zeros(len(hy))
+    top = np.full(len(hy), -np.inf)
     for dy in range(patch):
         for dx in range(patch):
             y, x = hy.astype(np.int64) - dy, hx.astype(np.int64) - dx
-            inside = (y >= 0) & (y < positions_y) & (x >= 0) & (x < positions_x)
+            inside = np.nonzero((y >= 0) & (y < positions_y) & (x >= 0) & (x < positions_x))[0]
             t = tid[y[inside], x[inside]]
             w = weight[t]
-            for c in range(image.shape[2]):
-                acc[inside, c] += w * image[nnf[t, 0] + dy, nnf[t, 1] + dx, c].astype(np.float64)
-            total[inside] += w
+            proposal = image[nnf[t, 0] + dy, nnf[t, 1] + dx].astype(np.float64)
+            if sharp:
+                better = w > top[inside]
+                acc[inside[better]], top[inside[better]], total[inside[better]] = proposal[better], w[better], 1.0
+            else:
+                for c in range(image.shape[2]):
+                    acc[inside, c] += w * proposal[:, c]
+                total[inside] += w
     out[:] = acc / total[:, None]
 
 
@@ -200,8 +210,7 @@ def content_aware_fill(lab: np.ndarray, hole: np.ndarray, *, seed: int = 0, patc
     search, vote, distances = ((search_reference, vote_reference, _distances_reference) if reference
                                else (fast.search, fast.vote, fast.distances))
     rng = np.random.default_rng(seed)
-    scale = np.array([1.0, CHROMA, CHROMA], np.float32)
-    levels = _pyramid(lab * scale, hole, patch, coarsest)
+    levels = _pyramid(lab, hole, patch, coarsest)
     schedule = np.rint(np.linspace(iterations[0], iterations[1], len(levels))).astype(int)
     image = nnf = positions = None
     for level, ((known, mask), count) in enumerate(zip(reversed(levels), schedule, strict=True)):
@@ -229,17 +238,16 @@ def content_aware_fill(lab: np.ndarray, hole: np.ndarray, *, seed: int = 0, patc
         nnf, spare = np.ascontiguousarray(start, np.int32), np.empty_like(start, np.int32)
         dist, spare_dist, out = np.empty(len(ty)), np.empty(len(ty)), np.empty((len(hy), 3), np.float32)
         if level > 0:  # the upsampled matches draw the finer level's detail before any search
-            vote(image, patch, hy, hx, tid, nnf, np.ones(len(ty)), out)
+            vote(image, patch, hy, hx, tid, nnf, np.ones(len(ty)), False, out)
             image[hy, hx] = out
         for _ in range(count):
             distances(image, patch, ty, tx, nnf, dist)
             for _ in range(passes):
                 search(image, patch, ty, tx, tid, valid, sources, nnf, dist, int(rng.integers(2**32)), spare, spare_dist)
                 nnf, spare, dist, spare_dist = spare, nnf, spare_dist, dist
-            weight = np.exp(-np.minimum(dist / (2.0 * max(float(np.percentile(dist, 75)), 1e-12)), 700.0))  # > 0: no empty vote
-            vote(image, patch, hy, hx, tid, nnf, weight, out)
+            vote(image, patch, hy, hx, tid, nnf, -dist, True, out)
             image[hy, hx] = out
         positions = tid
     result = lab.copy()
-    result[hole] = image[hole] / scale
+    result[hole] = image[hole]
     return result

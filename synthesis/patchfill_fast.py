@@ -91,19 +91,27 @@ def distances(image, patch, ty, tx, nnf, out):  # pragma: no cover - jitted
 
 
 @numba.njit(**_JIT)
-def vote(image, patch, hy, hx, tid, nnf, weight, out):  # pragma: no cover - jitted
+def vote(image, patch, hy, hx, tid, nnf, weight, sharp, out):  # pragma: no cover - jitted
     """One vote (see :func:`synthesis.patchfill.vote_reference` for the arguments)."""
     positions_y, positions_x = tid.shape
     channels = image.shape[2]
     for m in numba.prange(len(hy)):
         acc = np.zeros(channels)
         total = 0.0
+        top = -np.inf
         for dy in range(patch):
             for dx in range(patch):
                 y, x = hy[m] - dy, hx[m] - dx
                 if 0 <= y < positions_y and 0 <= x < positions_x:
                     t = tid[y, x]
                     w = weight[t]
+                    if sharp:
+                        if w > top:
+                            top = w
+                            for c in range(channels):
+                                acc[c] = np.float64(image[nnf[t, 0] + dy, nnf[t, 1] + dx, c])
+                            total = 1.0
+                        continue
                     for c in range(channels):
                         acc[c] += w * np.float64(image[nnf[t, 0] + dy, nnf[t, 1] + dx, c])
                     total += w

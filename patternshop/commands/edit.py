@@ -50,11 +50,29 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                       help="set: density becomes the gradient (D in [0, 1]); multiply: density is scaled by it "
                       "(D are factors), keeping the tone's shape (default set)")
     edit.add_argument("--expand", nargs=4, type=non_negative_int, metavar=("LEFT", "TOP", "RIGHT", "BOTTOM"), help="add margins of these many pixels")
-    edit.add_argument("--fill", nargs=3, type=finite_float, metavar=("L", "A", "B"), help="colour of the new margins (default: repeat the edge pixels)")
+    edit.add_argument("--fill", nargs="+", metavar="FILL",
+                      help="the new margins: 'edge' repeats the edge pixels (default), 'content-aware' fills them with "
+                      "more of the map's texture (patch-based, like Photoshop's Content-Aware Fill), or a colour L A B")
+    edit.add_argument("--seed", type=int, default=0, help="random seed of --fill content-aware (default 0)")
     edit.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of a TIFF output (default 16)")
     edit.add_argument("--preview", metavar="PNG", help="also write an sRGB PNG preview of the result")
     edit.add_argument("--palette", metavar="FILE", help="palette asset for --preset (default: the shipped one)")
     edit.set_defaults(func=run_edit)
+
+
+def _fill(words: list[str] | None) -> str | tuple[float, float, float] | None:
+    """--fill's words as :func:`synthesis.edits.expand` takes them: a mode, an (L, a, b) colour, or None."""
+    from synthesis.edits import FILL_MODES
+    from synthesis.errors import PatternshopError
+
+    if words is None or (len(words) == 1 and words[0] in FILL_MODES):
+        return words[0] if words else None
+    if len(words) != 3:
+        raise PatternshopError(f"--fill takes one of {', '.join(FILL_MODES)} or three numbers L A B, got {' '.join(words)}")
+    try:
+        return tuple(finite_float(word) for word in words)
+    except argparse.ArgumentTypeError as exc:
+        raise PatternshopError(f"--fill: {exc}") from exc
 
 
 def run_edit(args: argparse.Namespace) -> None:
@@ -83,7 +101,7 @@ def run_edit(args: argparse.Namespace) -> None:
     ab = api.preset(args.preset, palette=args.palette) if args.preset is not None else args.ab
     lab_map = api.read_map(args.map)
     if args.expand:
-        lab_map = api.expand(lab_map, tuple(args.expand), tuple(args.fill) if args.fill else None)
+        lab_map = api.expand(lab_map, tuple(args.expand), _fill(args.fill), seed=args.seed)
     shape = (lab_map.height, lab_map.width)
     region = (api.rect_region(shape, tuple(args.rect)) if args.rect else api.read_region(args.region, shape) if args.region
               else None)

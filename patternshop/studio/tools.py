@@ -16,7 +16,8 @@ Brushes (``density``, ``correlation``, ``eraser``) share one stroke weight, repe
 
 Other edits: ``fill`` (a selection gets a colour and/or a density: a rectangle ``rect``, a lasso
 ``polygon``, or the pixels of similar colour around a ``seed``, the magic wand), ``gradient`` (a linear density ramp,
-:func:`synthesis.edits.density_gradient`), ``expand`` (a larger canvas, :func:`synthesis.edits.expand`).
+:func:`synthesis.edits.density_gradient`), ``expand`` (a larger canvas, :func:`synthesis.edits.expand`; its new area repeats the edge, takes a colour, or
+is filled content-aware).
 """
 
 from __future__ import annotations
@@ -252,9 +253,10 @@ def _expand(lab: np.ndarray, edit: dict, offset: tuple[int, int]) -> tuple[np.nd
         raise PatternshopError(f"the expanded map would be {width + left + right} x {height + top + bottom} px; "
                                f"the studio edits maps up to {MAX_SIDE} px a side")
     fill = edit.get("fill")
-    if fill is not None:
+    if fill is not None and fill != "content-aware":
         if not isinstance(fill, list) or len(fill) != 3:
-            raise PatternshopError("expand's fill is [L, a, b] or null (repeat the edge pixels)")
+            raise PatternshopError("expand's fill is [L, a, b], \"content-aware\" (more of the map's texture) "
+                                   "or null (repeat the edge pixels)")
         fill = (_number({"L": fill[0]}, "L", 0, 100), *_ab(fill[1:], "fill"))
     result = expand(LabMap(lab), (left, top, right, bottom), fill)
     return np.array(result.lab), (offset[0] + left, offset[1] + top)

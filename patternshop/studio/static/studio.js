@@ -713,7 +713,7 @@ async function newMap() {
 
 function expandCanvas() {
   const margins = ["left", "top", "right", "bottom"].map((side) => Math.max(0, Math.round(+$(`expand-${side}`).value || 0)));
-  let fill = null;
+  let fill = $("expand-fill").value === "content-aware" ? "content-aware" : null;
   if ($("expand-fill").value === "colour") {
     const density = S.settings.fill_density === null || S.settings.fill_density === undefined ? 0.3 : S.settings.fill_density;
     fill = [100 * (1 - density), S.settings.ab[0], S.settings.ab[1]];
