@@ -5,13 +5,20 @@ Pair folders (:mod:`data_gen.shards`, :mod:`data_gen.pairs`) and the corpus cach
 use these, so ``out_dir`` and ``cache_dir`` may be URLs. Writes are atomic: locally (``file://`` too) a
 temporary file renamed onto the target (:mod:`synthesis.atomic`); elsewhere the whole object is uploaded
 in one request (an object store replaces an object at once, never partly).
+
+Code that reads and writes local paths only (the point and map readers and writers) reaches URLs through
+:func:`local_copies` (remote inputs downloaded into a temporary folder) and :func:`local_target` (an output
+written locally, then uploaded with :func:`write_atomic`); local paths go through both unchanged, at no cost.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
-from collections.abc import Callable
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
@@ -51,3 +58,61 @@ def write_atomic(target: str | os.PathLike, write: Callable[[BinaryIO], None]) -
 def write_text_atomic(target: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``target`` atomically."""
     write_atomic(target, lambda handle: handle.write(text.encode("utf-8")))
+
+
+@dataclass(frozen=True)
+class LocalCopies:
+    """What :func:`local_copies` yields: ``paths``, local files holding the inputs, and ``folders``, each local
+    folder's text and the remote folder's it stands for."""
+
+    paths: list[Path]
+    folders: tuple[tuple[str, str], ...] = ()
+
+    def named(self, text: str) -> str:
+        """``text`` (an error message) with each local copy's folder replaced by its URL's."""
+        for local, remote in sorted(self.folders, key=lambda pair: -len(pair[0])):  # .../10 before .../1
+            text = text.replace(local, remote)
+        return text
+
+
+@contextlib.contextmanager
+def local_copies(paths: Sequence[StoragePath]) -> Iterator[LocalCopies]:
+    """Local files for readers that take paths: a local path as it is; a URL downloaded into a temporary folder
+    (removed afterwards) under its own name, one folder per remote folder, so that siblings stay siblings (channel
+    PNGs). A missing input is not downloaded, for the reader to say so."""
+    if all(is_local(path) for path in paths):
+        yield LocalCopies(list(paths))
+        return
+    with tempfile.TemporaryDirectory(prefix="patternshop-") as scratch:
+        folders: dict[str, Path] = {}
+        copies = []
+        for path in paths:
+            if is_local(path):
+                copies.append(path)
+                continue
+            folder = folders.setdefault(str(path.parent), Path(scratch) / str(len(folders)))
+            folder.mkdir(exist_ok=True)
+            copies.append(folder / path.name)
+            if path.is_file():
+                path.fs.get_file(path.path, str(copies[-1]))
+        yield LocalCopies(copies, tuple((str(local), remote) for remote, local in folders.items()))
+
+
+@contextlib.contextmanager
+def local_target(target: str | os.PathLike | UPath) -> Iterator[Path]:
+    """A local path to write ``target`` through: ``target`` itself when local (the writer's own atomic rename);
+    else a temporary file, uploaded onto ``target`` in one request (:func:`write_atomic`) once the block ends
+    without an exception."""
+    target = as_path(target)
+    if is_local(target):
+        yield target
+        return
+    with tempfile.TemporaryDirectory(prefix="patternshop-") as scratch:
+        local = Path(scratch) / target.name
+        yield local
+        write_atomic(target, lambda handle: handle.write(local.read_bytes()))
+
+
+def in_process(path: StoragePath) -> bool:
+    """Whether ``path``'s file system lives in this process only (``memory://``): other processes see it empty."""
+    return isinstance(path, UPath) and path.protocol == "memory"

@@ -19,6 +19,11 @@ caller to report. Outputs are written atomically, named after the input
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
 
+Folders may be local paths or fsspec URLs (``file://``, ``s3://``, ``gs://`` with the user's backend, ``memory://``;
+:mod:`data_gen.storage`): a worker downloads its remote inputs into a temporary folder, reads them there, and
+uploads each output in one request once it is complete (no half file on a kill), so errors name the URLs.
+``memory://`` lives in one process: with it the local back end works in the calling process (``workers`` 1).
+
 Workers are spawned processes (no forked ONNX Runtime or numba thread state)
 that ignore Ctrl+C: the parent terminates them at once on any exception, Ctrl+C
 included, and removes the temporary files they leave; ``workers <= 1`` works in
@@ -41,6 +46,7 @@ from typing import TYPE_CHECKING
 from tqdm import tqdm
 
 from data_gen.executor import DASK, LOCAL, Executor, Lost
+from data_gen.storage import StoragePath, as_path, in_process, is_local, local_copies, local_target
 from synthesis.atomic import check_writable, remove_stale_temporaries
 from synthesis.conventions import POINTS_PER_INK
 from synthesis.errors import PatternshopError, PatternshopWarning
@@ -58,8 +64,8 @@ PathLike = str | os.PathLike
 class FileResult:
     """What happened to one input: ``status`` is written, skipped (the output existed) or failed (``error`` says why)."""
 
-    source: Path
-    output: Path
+    source: StoragePath  # a Path, or a UPath for a URL (data_gen.storage.as_path)
+    output: StoragePath
     status: str
     error: str | None = None
     warnings: tuple[str, ...] = ()
@@ -80,39 +86,47 @@ class SynthesisSettings:
 @dataclass(frozen=True)
 class _Job:
     index: int
-    source: Path
-    output: Path
+    source: StoragePath
+    output: StoragePath
 
 
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
-def _files(folder: PathLike, suffixes: tuple[str, ...]) -> list[Path]:
-    folder = Path(folder)
+def _files(folder: PathLike, suffixes: tuple[str, ...]) -> list[StoragePath]:
+    folder = as_path(folder)
     if not folder.is_dir():
         raise PatternshopError(f"{folder}: no such folder")
-    return sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in suffixes)
+    return sorted((p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in suffixes),
+                  key=str)
 
 
-def point_files(folder: PathLike) -> list[Path]:
-    """The point files (.txt, .csv, .xy, .pts, .npy) directly in ``folder``, sorted."""
+def point_files(folder: PathLike) -> list[StoragePath]:
+    """The point files (.txt, .csv, .xy, .pts, .npy) directly in ``folder`` (a path or an fsspec URL), sorted."""
     return _files(folder, TEXT_SUFFIXES + (NPY_SUFFIX,))
 
 
-def map_files(folder: PathLike) -> list[Path]:
-    """The maps directly in ``folder``, sorted: TIFFs, sRGB images, and each channel-PNG triplet once (as NAME.L.png)."""
-    from synthesis.mapio import SRGB_SUFFIXES, TIFF_SUFFIXES, channel_paths, is_channel_path
+def map_files(folder: PathLike) -> list[StoragePath]:
+    """The maps directly in ``folder`` (a path or an fsspec URL), sorted: TIFFs, sRGB images, and each channel-PNG
+    triplet once (as NAME.L.png)."""
+    from synthesis.mapio import SRGB_SUFFIXES, TIFF_SUFFIXES
 
-    maps = {channel_paths(p)[0] if is_channel_path(p) else p for p in _files(folder, TIFF_SUFFIXES + SRGB_SUFFIXES)}
-    return sorted(maps)
+    return sorted({_inputs(p)[0] for p in _files(folder, TIFF_SUFFIXES + SRGB_SUFFIXES)}, key=str)
 
 
-def _stem(source: Path) -> str:
+def _inputs(source: StoragePath) -> list[StoragePath]:
+    """The files an input is read from: itself, or for one of a channel-PNG triplet the three (NAME.L.png first)."""
+    from synthesis.mapio import channel_paths, is_channel_path
+
+    return [source.with_name(p.name) for p in channel_paths(source.name)] if is_channel_path(source.name) else [source]
+
+
+def _stem(source: StoragePath) -> str:
     """Output name of an input: ``face.L.png`` -> ``face``, ``pts.txt`` -> ``pts``."""
     from synthesis.mapio import is_channel_path
 
-    return source.name[: -len(".L.png")] if is_channel_path(source) else source.stem
+    return source.name[: -len(".L.png")] if is_channel_path(source.name) else source.stem
 
 
 def _plan(sources: Sequence[PathLike], out_dir: PathLike, suffix: str, overwrite: bool,
@@ -121,13 +135,14 @@ def _plan(sources: Sequence[PathLike], out_dir: PathLike, suffix: str, overwrite
 
     ``absolute``: jobs and results name absolute paths (for workers on other machines, whose working folder differs).
     """
-    out_dir = Path(out_dir).absolute() if absolute else Path(out_dir)
+    out_dir = as_path(out_dir)
+    out_dir = out_dir.absolute() if absolute and is_local(out_dir) else out_dir
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs: list[_Job] = []
     known: dict[int, FileResult] = {}
-    claimed: dict[Path, Path] = {}
-    for index, source in enumerate(map(Path, sources)):
-        source = source.absolute() if absolute else source
+    claimed: dict[StoragePath, StoragePath] = {}
+    for index, source in enumerate(map(as_path, sources)):
+        source = source.absolute() if absolute and is_local(source) else source
         output = out_dir / (_stem(source) + suffix)
         if output in claimed:
             known[index] = FileResult(source, output, FAILED, f"{output} is made from {claimed[output]} already")
@@ -136,12 +151,12 @@ def _plan(sources: Sequence[PathLike], out_dir: PathLike, suffix: str, overwrite
         else:
             jobs.append(_Job(index, source, output))
         claimed.setdefault(output, source)
-    if jobs:
+    if jobs and is_local(out_dir):
         check_writable(jobs[0].output)  # an unwritable folder stops the run before any work, not file by file
     return jobs, known
 
 
-def _run(function: Callable, tasks: list, executor: Executor, out_dir: Path, lost: Callable[[Lost], object],
+def _run(function: Callable, tasks: list, executor: Executor, out_dir: StoragePath, lost: Callable[[Lost], object],
          initializer: Callable | None = None, initargs: tuple = ()) -> Iterator:
     """``function(task)`` for every task through ``executor`` (:mod:`data_gen.executor`), in order of completion;
     a task lost with its Dask workers comes back as ``lost(Lost)``.
@@ -153,15 +168,23 @@ def _run(function: Callable, tasks: list, executor: Executor, out_dir: Path, los
         for result in executor.map_unordered(function, tasks, initializer, initargs):
             yield lost(result) if isinstance(result, Lost) else result
     finally:
-        if executor.kind == LOCAL:  # remote workers may still be writing theirs (atomically)
+        if executor.kind == LOCAL and is_local(out_dir):  # remote workers may still be writing theirs (atomically)
             remove_stale_temporaries(out_dir)
 
 
 def _executor(workers: int, scheduler: str | None) -> Executor:
     """``scheduler``: a Dask scheduler's address (``tcp://host:8786``): the files are converted on its workers, which
-    must read the inputs and write ``out_dir`` at the same absolute paths (a shared file system); None (default):
-    ``workers`` local processes (:mod:`data_gen.executor`)."""
+    must read the inputs and write ``out_dir`` at the same absolute paths (a shared file system) or URLs; None
+    (default): ``workers`` local processes (:mod:`data_gen.executor`)."""
     return Executor(DASK, workers, scheduler) if scheduler else Executor(LOCAL, workers)
+
+
+def _processes(workers: int, tasks: int, scheduler: str | None, jobs: list[_Job]) -> int:
+    """Worker processes for ``tasks`` tasks: at most ``workers``; 1 (this process) for ``memory://`` files and no
+    ``scheduler``, since other processes would see an empty ``memory://``."""
+    if not scheduler and any(in_process(job.source) or in_process(job.output) for job in jobs):
+        return 1
+    return max(1, min(workers, tasks))
 
 
 def _check_share(job: _Job, needed: float, work: str, share: float) -> None:
@@ -206,8 +229,11 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
     results: list[tuple[int, FileResult]] = []
     for job in chunk:
         notes: tuple[str, ...] = ()
+        named = str  # error messages as they are, unless they name local copies of remote files
         try:
-            points = read_points(job.source)
+            with local_copies([job.source]) as copies:
+                named = copies.named
+                points = read_points(copies.paths[0])
             scale = pattern_scale(points, settings.points_per_ink)
             (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink,
                                                             scale.points_per_ink)
@@ -220,10 +246,11 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
             notes = tuple(f"{job.source}: {warning.message}" for warning in caught)
             if scale.points_per_ink != POINTS_PER_INK:
                 notes += (f"{job.source}: read at {scale.describe()}",)
-            write_tiff(inference.lab_map, job.output, settings.bits)
+            with local_target(job.output) as output:
+                write_tiff(inference.lab_map, output, settings.bits)
             results.append((job.index, FileResult(job.source, job.output, WRITTEN, None, notes)))
         except (PatternshopError, OSError) as exc:
-            results.append((job.index, FileResult(job.source, job.output, FAILED, _one_line(exc), notes)))
+            results.append((job.index, FileResult(job.source, job.output, FAILED, named(_one_line(exc)), notes)))
     return results
 
 
@@ -250,7 +277,7 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
     if batch_size < 1 or bits not in (8, 16):
         raise PatternshopError(f"batch size must be >= 1 and bits 8 or 16, got {batch_size} and {bits}")
     jobs, results = _plan(sources, out_dir, ".tif", overwrite, absolute=scheduler is not None)
-    processes = max(1, min(workers, math.ceil(len(jobs) / batch_size)))
+    processes = _processes(workers, math.ceil(len(jobs) / batch_size), scheduler, jobs)
     settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes, symmetries, denoise)
     chunks = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
     executor = _executor(processes, scheduler)
@@ -266,7 +293,7 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
         return [(job.index, FileResult(job.source, job.output, FAILED, chunk.error)) for job in chunk.task]
 
     with tqdm(total=len(sources), initial=len(results), desc="convert", unit="file", disable=not progress) as bar:
-        for chunk_results in _run(convert, chunks, executor, Path(out_dir), lost, initializer, initargs):
+        for chunk_results in _run(convert, chunks, executor, as_path(out_dir), lost, initializer, initargs):
             results.update(chunk_results)
             bar.update(len(chunk_results))
     return [results[i] for i in range(len(sources))]
@@ -281,22 +308,27 @@ def _resynthesize(settings: SynthesisSettings, threads: int, memory_limit: float
     from synthesis.resources import synthesis_bytes
     from synthesis.synthesize import point_count, synthesize
 
+    named = str  # messages as they are, unless they name local copies of remote files
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PatternshopWarning)
         try:
-            width, height = map_size(job.source)
-            _check_share(job, synthesis_bytes(width * height, settings.points or 0), f"a {width}x{height} px map", memory_limit)
-            lab_map = read_map(job.source)
+            with local_copies(_inputs(job.source)) as copies:
+                named = copies.named
+                width, height = map_size(copies.paths[0])
+                _check_share(job, synthesis_bytes(width * height, settings.points or 0), f"a {width}x{height} px map",
+                             memory_limit)
+                lab_map = read_map(copies.paths[0])
             points_per_ink = settings.points_per_ink if settings.points_per_ink is not None else POINTS_PER_INK
             n = settings.points if settings.points is not None else point_count(lab_map, points_per_ink)
             _check_share(job, synthesis_bytes(width * height, n), f"{n:,} points", memory_limit)
             result = synthesize(lab_map, n=n, palette=load_palette(settings.palette), schedule=settings.schedule,
                                 iterations=settings.iterations, seed=settings.seed, threads=threads)
-            write_points(result.points, job.output)
+            with local_target(job.output) as output:
+                write_points(result.points, output)
             status, error = WRITTEN, None
         except (PatternshopError, OSError) as exc:
-            status, error = FAILED, _one_line(exc)
-    notes = tuple(" ".join(str(w.message).split()) for w in caught if issubclass(w.category, PatternshopWarning))
+            status, error = FAILED, named(_one_line(exc))
+    notes = tuple(named(" ".join(str(w.message).split())) for w in caught if issubclass(w.category, PatternshopWarning))
     return job.index, FileResult(job.source, job.output, status, error, notes)
 
 
@@ -315,14 +347,14 @@ def resynthesize_maps(sources: Sequence[PathLike], out_dir: PathLike, settings: 
     if threads < 1:
         raise PatternshopError(f"threads must be at least 1, got {threads}")
     jobs, results = _plan(sources, out_dir, ".txt", overwrite, absolute=scheduler is not None)
-    processes = max(1, min(workers, len(jobs)))
+    processes = _processes(workers, len(jobs), scheduler, jobs)
     synthesise = functools.partial(_resynthesize, settings, threads, memory_limit / processes)
 
     def lost(job: Lost) -> tuple[int, FileResult]:
         return job.task.index, FileResult(job.task.source, job.task.output, FAILED, job.error)
 
     with tqdm(total=len(sources), initial=len(results), desc="resynthesize", unit="map", disable=not progress) as bar:
-        for index, result in _run(synthesise, jobs, _executor(processes, scheduler), Path(out_dir), lost):
+        for index, result in _run(synthesise, jobs, _executor(processes, scheduler), as_path(out_dir), lost):
             results[index] = result
             bar.update()
     return [results[i] for i in range(len(sources))]

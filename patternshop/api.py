@@ -23,6 +23,7 @@ Functions, by workflow:
 * photo -> map: :func:`from_image`; a plain map: :func:`uniform_map`;
 * map -> points: :func:`synthesize` (with a ``progress`` callback), :func:`point_count`, :func:`dot_sizes`;
 * points -> map: :func:`infer` (the network, :func:`load_model`, :func:`infer_scale`);
+* batches: :func:`convert` (a folder of point files to maps, or of maps to point files; folders or fsspec URLs);
 * a pattern's correlation: :func:`analyze`, :func:`plot_analysis`;
 * map edits (each returns a new map): :func:`set_correlation`, :func:`density_gradient`, :func:`expand`,
   :func:`resize`, with regions from :func:`rect_region` and :func:`read_region`;
@@ -44,6 +45,7 @@ from synthesis.errors import PatternshopError
 if TYPE_CHECKING:
     import numpy as np
 
+    from export.convert import FileResult
     from export.evidence import ScaleChoice
     from export.runtime import Inference, OnnxModel
     from synthesis.analysis import plot_analysis
@@ -76,6 +78,7 @@ _REEXPORTS = {
     "Palette": "synthesis.palette",
     "SynthesisResult": "synthesis.synthesize",
     "Inference": "export.runtime",
+    "FileResult": "export.convert",
     "OnnxModel": "export.runtime",
     "read_map": "synthesis.mapio",
     "write_map": "synthesis.mapio",
@@ -94,7 +97,7 @@ _REEXPORTS = {
     "read_region": "synthesis.edits",
     "load_palette": "synthesis.palette",
 }
-_FUNCTIONS = ("analyze", "correlation_ab", "from_image", "infer", "infer_scale", "load_model", "preset", "presets",
+_FUNCTIONS = ("analyze", "convert", "correlation_ab", "from_image", "infer", "infer_scale", "load_model", "preset", "presets",
               "set_correlation", "synthesize", "uniform_map")
 
 __all__ = sorted(["POINTS_PER_INK", *_REEXPORTS, *_FUNCTIONS])
@@ -432,6 +435,98 @@ def infer(
         model = load_model(model, threads=threads)
     return infer_map(points, model, width=width, scale=infer_scale(points, points_per_ink), fill_thin=fill,
                      calibrate=calibrate, symmetries=symmetries, sharpen=sharpen, denoise=denoise)
+
+
+# --- batches ------------------------------------------------------------------------------------------------
+def convert(
+    in_dir: PathLike,
+    out_dir: PathLike,
+    *,
+    resynthesize: bool = False,
+    model: OnnxModel | PathLike | None = None,
+    workers: int = 2,
+    threads: int = 1,
+    scheduler: str | None = None,
+    batch_size: int = 8,
+    overwrite: bool = False,
+    max_memory_gb: float | None = None,
+    progress_bar: bool = False,
+    points_per_ink: float | None = None,
+    bits: int = 16,
+    symmetries: int = 1,
+    denoise: bool = True,
+    points: int | None = None,
+    schedule: str = "fast",
+    iterations: int | None = None,
+    seed: int = 0,
+    palette: PathLike | None = None,
+) -> list[FileResult]:
+    """Convert a folder (``patternshop convert``): infer ``out_dir/NAME.tif`` for every point file in ``in_dir``
+    (.txt, .csv, .xy, .pts, .npy), or with ``resynthesize`` synthesise ``out_dir/NAME.txt`` for every map.
+
+    Both folders may be local paths or fsspec URLs (``file://``, ``s3://`` / ``gs://`` with s3fs / gcsfs installed;
+    ``memory://`` works in this process only, so it runs with one worker). Outputs are written atomically, existing
+    ones skipped unless ``overwrite`` (a rerun resumes), and a bad file fails alone (its result says why).
+
+    Args:
+        resynthesize: maps to points (the synthesiser) instead of points to maps (the network).
+        model: points to maps: a model from :func:`load_model`, the path of an ``.onnx`` model, or None for the
+            shipped one (workers load it by path).
+        workers: local worker processes, each started once (1: this process); ignored with ``scheduler``.
+        threads: CPU threads per worker (ONNX Runtime, or the synthesiser).
+        scheduler: a Dask scheduler's address (``tcp://host:8786``): run on its workers, which must reach both
+            folders at the same absolute paths or URLs (docs/distributed.md).
+        batch_size: point files per worker task.
+        max_memory_gb: the memory all workers together may use; a file whose estimate exceeds its worker's share
+            fails (None: no limit).
+        progress_bar: show a progress bar on stderr.
+        points_per_ink: the scale point files are read at (default: per file, as :func:`infer`), and maps
+            synthesised at with ``resynthesize`` (default 50,000).
+        bits: 8 or 16 bits per sample of the output TIFFs.
+        symmetries: network readings averaged per file: 1 (default, for throughput), 4 or 8 (as :func:`infer`).
+        denoise: smooth L where its detail is noise, as :func:`infer` does (about twice the network time).
+        points, schedule, iterations, seed, palette: ``resynthesize`` only, as in :func:`synthesize` (every map
+            gets the same seed); ``palette`` the path of a palette asset.
+
+    Returns:
+        One :class:`~export.convert.FileResult` per input, sorted by name: ``.source``, ``.output``, ``.status``
+        (``"written"``, ``"skipped"``: its output existed, or ``"failed"``), ``.error`` and ``.warnings``.
+
+    Raises:
+        PatternshopError: a missing folder, a folder without inputs, a missing model, or a bad option.
+    """
+    from export.convert import SynthesisSettings, convert_points, map_files, point_files, resynthesize_maps
+
+    _check_int("workers", workers, 1)
+    _check_int("threads", threads, 1)
+    memory_limit = math.inf if max_memory_gb is None else _check_positive("max_memory_gb", max_memory_gb) * 1e9
+    if points_per_ink is not None:
+        _check_positive("points_per_ink", points_per_ink)
+    if resynthesize:
+        if model is not None:
+            raise PatternshopError("a model does not apply to resynthesize (maps to points uses the synthesiser)")
+        _check_int("seed", seed, 0, MAX_SEED)
+        sources = map_files(in_dir)
+        if not sources:
+            raise PatternshopError(f"{in_dir}: no maps (.tif, .tiff, .png, .jpg, .jpeg, channel PNGs NAME.L.png)")
+        settings = SynthesisSettings(points=points, points_per_ink=points_per_ink, schedule=schedule,
+                                     iterations=iterations, seed=seed,
+                                     palette=None if palette is None else os.fspath(palette))
+        return resynthesize_maps(sources, out_dir, settings, workers=workers, threads=threads, overwrite=overwrite,
+                                 progress=progress_bar, memory_limit=memory_limit, scheduler=scheduler)
+    from export.runtime import OnnxModel
+
+    _check_int("batch_size", batch_size, 1)
+    if symmetries not in (1, 4, 8):
+        raise PatternshopError(f"symmetries must be 1, 4 or 8, got {symmetries!r}")
+    sources = point_files(in_dir)
+    if not sources:
+        raise PatternshopError(f"{in_dir}: no point files (.txt, .csv, .xy, .pts, .npy)")
+    if not isinstance(model, OnnxModel):
+        model = load_model(model, threads=threads)
+    return convert_points(sources, out_dir, model, batch_size=batch_size, workers=workers, bits=bits,
+                          overwrite=overwrite, progress=progress_bar, points_per_ink=points_per_ink,
+                          memory_limit=memory_limit, symmetries=symmetries, denoise=denoise, scheduler=scheduler)
 
 
 # --- a pattern's correlation --------------------------------------------------------------------------------

@@ -259,6 +259,10 @@ def test_convert_on_dask_matches_local(cluster, tmp_path, capsys):
     for name in ("a", "b", "c"):
         expected = (tmp_path / "local" / f"{name}.tif").read_bytes()
         assert (tmp_path / "dask" / f"{name}.tif").read_bytes() == expected == (tmp_path / "cli" / f"{name}.tif").read_bytes()
+    status, _, err = run_cli(["convert", (tmp_path / "points").as_uri(), (tmp_path / "url").as_uri(), "--model", str(model),
+                              "--scheduler", cluster[0], "--batch-size", "2", "--no-progress"], capsys)  # file:// URLs
+    assert status == 0 and "wrote 3 of 3 files" in err
+    assert all((tmp_path / "url" / f"{n}.tif").read_bytes() == (tmp_path / "local" / f"{n}.tif").read_bytes() for n in "abc")
 
 
 # --- training on several processes ----------------------------------------------------

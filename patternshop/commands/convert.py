@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from patternshop.commands import GIGABYTE, check_palette_file, positive_float, positive_int, seed
+from patternshop.commands import check_palette_file, positive_float, positive_int, seed
 from synthesis.conventions import POINTS_PER_INK, POINTS_PER_INK_MEANING
 
 EXIT_SOME_FAILED = 1
@@ -35,8 +35,9 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    convert.add_argument("in_dir", help="folder of point files (of maps with --resynthesize)")
-    convert.add_argument("out_dir", help="output folder (created if missing)")
+    convert.add_argument("in_dir", help="folder of point files (of maps with --resynthesize): a path or an fsspec URL "
+                         "(file://, s3://, gs://; docs/distributed.md)")
+    convert.add_argument("out_dir", help="output folder (created if missing): a path or an fsspec URL")
     convert.add_argument("--model", metavar="FILE", help="ONNX model (default: the shipped patternshop_nn/assets/default.onnx)")
     convert.add_argument("--batch-size", type=positive_int, default=8, metavar="B",
                          help="point files per worker task (default 8)")
@@ -47,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                          "on a 2-core machine prefer --workers 2 --threads 1")
     convert.add_argument("--scheduler", metavar="ADDRESS",
                          help="run on the workers of this Dask scheduler (tcp://host:8786) instead of --workers local "
-                         "processes; the workers must see IN_DIR and OUT_DIR at the same absolute paths (docs/distributed.md)")
+                         "processes; the workers must see IN_DIR and OUT_DIR at the same absolute paths or URLs (docs/distributed.md)")
     convert.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of the output TIFFs (default 16)")
     convert.add_argument("--overwrite", action="store_true", help="replace existing outputs instead of skipping their inputs")
     convert.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -74,34 +75,19 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
 def run_convert(args: argparse.Namespace) -> int:
     import warnings
 
-    from export.convert import FAILED, SKIPPED, SynthesisSettings, convert_points, map_files, point_files, resynthesize_maps
+    from export.convert import FAILED, SKIPPED
+    from patternshop.api import convert
     from synthesis.errors import PatternshopError, PatternshopWarning
 
     check_palette_file(args.palette)
-    memory_limit = args.max_memory_gb * GIGABYTE
-    progress = not args.no_progress and sys.stderr.isatty()
-    if args.resynthesize:
-        if args.model:
-            raise PatternshopError("--model does not apply with --resynthesize (maps to points uses the synthesiser)")
-        sources = map_files(args.in_dir)
-        if not sources:
-            raise PatternshopError(f"{args.in_dir}: no maps (.tif, .tiff, .png, .jpg, .jpeg, channel PNGs NAME.L.png)")
-        settings = SynthesisSettings(points=args.points, points_per_ink=args.points_per_ink, schedule=args.schedule,
-                                     iterations=args.iterations, seed=args.seed, palette=args.palette)
-        results = resynthesize_maps(sources, args.out_dir, settings, workers=args.workers, threads=args.threads,
-                                    overwrite=args.overwrite, progress=progress, memory_limit=memory_limit,
-                                    scheduler=args.scheduler)
-    else:
-        from patternshop.api import load_model
-
-        sources = point_files(args.in_dir)
-        if not sources:
-            raise PatternshopError(f"{args.in_dir}: no point files (.txt, .csv, .xy, .pts, .npy)")
-        model = load_model(args.model, threads=args.threads)
-        results = convert_points(sources, args.out_dir, model, batch_size=args.batch_size, workers=args.workers,
-                                 bits=args.bits, overwrite=args.overwrite, progress=progress, points_per_ink=args.points_per_ink,
-                                 memory_limit=memory_limit, symmetries=args.symmetries, denoise=not args.no_denoise,
-                                 scheduler=args.scheduler)
+    if args.resynthesize and args.model:
+        raise PatternshopError("--model does not apply with --resynthesize (maps to points uses the synthesiser)")
+    results = convert(args.in_dir, args.out_dir, resynthesize=args.resynthesize, model=args.model, workers=args.workers,
+                      threads=args.threads, scheduler=args.scheduler, batch_size=args.batch_size, overwrite=args.overwrite,
+                      max_memory_gb=args.max_memory_gb, progress_bar=not args.no_progress and sys.stderr.isatty(),
+                      points_per_ink=args.points_per_ink, bits=args.bits, symmetries=args.symmetries,
+                      denoise=not args.no_denoise, points=args.points, schedule=args.schedule, iterations=args.iterations,
+                      seed=args.seed, palette=args.palette)
     for result in results:
         for note in result.warnings:
             warnings.warn(note, PatternshopWarning, stacklevel=1)
