@@ -166,9 +166,8 @@ def test_lost_item_is_recorded_as_skipped(images, reference, tmp_path, monkeypat
     assert 5 not in pairs.item and np.array_equal(pairs.raster, np.delete(reference.raster, 5, axis=0))
 
 
-def test_interrupted_dask_run_resumes(cluster, images, reference, tmp_path, monkeypatch):
-    address, client = cluster
-    out = tmp_path / "pairs"
+def interrupted_after_first_shard(monkeypatch: pytest.MonkeyPatch, cfg) -> None:  # noqa: ANN001 - a DictConfig
+    """Run ``generate(cfg)`` with a Ctrl+C right after its first shard is merged (the folder is then resumable)."""
     merge = pairs_module.merge_chunk
 
     def interrupt_after_first_shard(*args):
@@ -177,8 +176,14 @@ def test_interrupted_dask_run_resumes(cluster, images, reference, tmp_path, monk
 
     monkeypatch.setattr(pairs_module, "merge_chunk", interrupt_after_first_shard)
     with pytest.raises(KeyboardInterrupt):
-        generate(pair_config(images, out, *on_dask(address)))
+        generate(cfg)
     monkeypatch.undo()
+
+
+def test_interrupted_dask_run_resumes(cluster, images, reference, tmp_path, monkeypatch):
+    address, client = cluster
+    out = tmp_path / "pairs"
+    interrupted_after_first_shard(monkeypatch, pair_config(images, out, *on_dask(address)))
     deadline = time.monotonic() + 30
     while any(client.processing().values()) and time.monotonic() < deadline:  # the cluster's work was cancelled
         time.sleep(0.1)
@@ -203,16 +208,7 @@ def test_pair_folder_at_a_memory_url_resumes_and_trains(images, reference, tmp_p
     from patternshop_nn.data import PairDataModule
 
     url = f"memory://{tmp_path.name}/pairs"
-    merge = pairs_module.merge_chunk
-
-    def interrupt_after_first_shard(*args):
-        merge(*args)
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(pairs_module, "merge_chunk", interrupt_after_first_shard)
-    with pytest.raises(KeyboardInterrupt):
-        generate(pair_config(images, url))
-    monkeypatch.undo()
+    interrupted_after_first_shard(monkeypatch, pair_config(images, url))
     summary = generate(pair_config(images, url))
     assert summary["made_now"] == ITEMS - 2 and summary["pairs_in_folder"] == ITEMS and summary["out_dir"] == url
     same_pairs(load_pairs(url), reference)

@@ -172,13 +172,19 @@ function draw() {
   });
 }
 
-function drawMapView() {
-  const canvas = $("map-view");
+// A view's 2D context, sized to its box and cleared; null while no map is open.
+function clearedView(id) {
+  const canvas = $(id);
   resizeCanvas(canvas);
   const ctx = canvas.getContext("2d");
   ctx.setTransform(1, 0, 0, 1, 0, 0);
   ctx.clearRect(0, 0, canvas.width, canvas.height);
-  if (!S.map) return;
+  return S.map ? ctx : null;
+}
+
+function drawMapView() {
+  const ctx = clearedView("map-view");
+  if (!ctx) return;
   const {zoom, x, y} = S.view;
   ctx.setTransform(zoom, 0, 0, zoom, x, y);
   ctx.imageSmoothingEnabled = zoom < 1;
@@ -224,12 +230,8 @@ function drawMapView() {
 }
 
 function drawPointsView() {
-  const canvas = $("points-view");
-  resizeCanvas(canvas);
-  const ctx = canvas.getContext("2d");
-  ctx.setTransform(1, 0, 0, 1, 0, 0);
-  ctx.clearRect(0, 0, canvas.width, canvas.height);
-  if (!S.map) return;
+  const ctx = clearedView("points-view");
+  if (!ctx) return;
   const {zoom, x, y} = S.view;
   ctx.fillStyle = "#fff";  // the paper: the map's domain
   ctx.fillRect(x, y, S.map.width * zoom, S.map.height * zoom);
