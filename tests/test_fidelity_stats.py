@@ -128,6 +128,20 @@ def test_poisson_disk_reference_and_lloyd_stippler():
     assert stats["nn_cv"] < 0.15 and stats["min_nn"] > 0.4  # regular (pixel-grid centroids are quantised)
 
 
+def test_capacity_constrained_lloyd_gives_every_point_its_ink():
+    from data_gen.stipplers import capacity_lloyd_stipple
+
+    y, x = (np.mgrid[0:96, 0:96] + 0.5) / 96
+    density = np.where(x < 0.5, 0.2, 0.9) * (0.8 + 0.2 * np.cos(6 * y))
+    density[:8, :8] = 0.0  # paper: a cell there must not swallow ink (it once took 36 capacities)
+    n = 600
+    xy, spread = capacity_lloyd_stipple(density, n, iterations=30, seed=0)
+    assert spread < 0.5  # pixel-discrete: a pixel is ~n / 9216 = 0.07 of a capacity
+    lloyd = fs.lloyd_stipple(density, n, iterations=30, seed=0)
+    assert np.sum(xy[:, 0] > 0.5) / n == pytest.approx(density[:, 48:].sum() / density.sum(), abs=0.01)
+    assert fs.density_psnr(xy, density, (1.0, 1.0), 2.0) > fs.density_psnr(lloyd, density, (1.0, 1.0), 2.0) + 3
+
+
 def test_density_psnr_prefers_the_right_density():
     rng = np.random.default_rng(5)
     density = np.tile(np.linspace(0.05, 1.0, 128), (128, 1))

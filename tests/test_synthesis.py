@@ -135,6 +135,75 @@ def test_gradient_matches_finite_differences(split_hood):
             assert numeric == pytest.approx(gradient[index, axis], rel=1e-3, abs=1e-6 * np.abs(gradient).max())
 
 
+# --- tone term -------------------------------------------------------------------------------
+def photo_like_map(size: int = 128) -> LabMap:
+    """A procedural stand-in for a photograph (no scikit-image picture in tests): smooth waves of density 0.3-0.8,
+    a dark disc and a light rectangle with sharp edges; the blue preset."""
+    y, x = (np.mgrid[0:size, 0:size] + 0.5) / size
+    density = 0.55 + 0.25 * np.sin(5 * x + 2 * y) * np.cos(3 * y)
+    density = np.where((x - 0.62) ** 2 + (y - 0.4) ** 2 < 0.2**2, 0.95, density)
+    density = np.where((x < 0.3) & (y > 0.6), 0.2, density)
+    lab = np.zeros((size, size, 3), np.float32)
+    lab[..., 0] = 100.0 * (1.0 - np.clip(density, 0.15, 0.95))
+    lab[..., 1:] = load_palette().preset_ab()["blue"]
+    return LabMap(lab)
+
+
+def test_tone_term_gradient_matches_finite_differences():
+    from synthesis.density_term import DensityTerm
+
+    fields = MapFields.build(split_map(), 800, load_palette())
+    term = DensityTerm(split_map(), fields, weight=1e4, scale=3.0)
+    xy = inhomogeneous_poisson(split_map(), 800, 2)
+    loss, gradient = term.reference(xy)
+    assert loss > 0 and np.abs(gradient).max() > 0
+    rng = np.random.default_rng(0)
+    for index in rng.choice(800, 6, replace=False):
+        for axis in (0, 1):
+            step = 1e-7
+            plus, minus = xy.copy(), xy.copy()
+            plus[index, axis] += step
+            minus[index, axis] -= step
+            numeric = (term.reference(plus)[0] - term.reference(minus)[0]) / (2 * step)
+            assert numeric == pytest.approx(gradient[index, axis], rel=1e-4, abs=1e-6 * np.abs(gradient).max())
+
+
+def test_tone_term_acts_only_where_the_target_is_regular():
+    from synthesis.density_term import DensityTerm
+
+    fields = MapFields.build(split_map(), 800, load_palette())  # blue left half, red (clustered) right half
+    term = DensityTerm(split_map(), fields, weight=1e4, scale=3.0)
+    half = term.shape[1] // 2
+    assert term.mask[:, : half - 1].min() > 0.9 and term.mask[:, half + 1 :].max() < 0.05
+    assert term.target.sum() == pytest.approx(800)
+    assert term.target[:, half + 1 :].mean() == pytest.approx(3.0 * term.target[:, : half - 1].mean(), rel=0.02)  # L 40 | 80
+
+
+def test_photo_like_map_keeps_its_tone_better_than_weighted_lloyd():
+    """Density PSNR at a blur of 2 mean spacings (bench/fidelity_stats.py, written apart from the synthesiser) of a
+    3,000-point synthesis against weighted Lloyd (60 iterations, stratified start) of the same count. Measured, seeds
+    0-2: +13.5, +15.0, +14.3 dB over Lloyd (49.1-49.9 dB); without the tone term (``tone=0``, synthesis v2) +2.2,
+    +4.1, +2.4 dB. Bound: +8 dB."""
+    import sys
+    from dataclasses import replace
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+    import fidelity_stats as fs
+
+    from synthesis.synthesize import SCHEDULES
+
+    lab_map = photo_like_map()
+    density = lab_map.density().astype(np.float64)
+    n = 3000
+    lloyd = fs.density_psnr(fs.lloyd_stipple(density, n, (1.0, 1.0), iterations=60, seed=0), density, (1.0, 1.0), 2.0)
+    ours = fs.density_psnr(synthesize(lab_map, n=n, seed=0).points.xy, density, (1.0, 1.0), 2.0)
+    assert ours >= lloyd + 8.0, (ours, lloyd)
+    assert SCHEDULES["fast"].tone > 0
+    without = synthesize(lab_map, n=n, seed=0, schedule=replace(SCHEDULES["fast"], tone=0.0)).points.xy
+    assert fs.density_psnr(without, density, (1.0, 1.0), 2.0) < lloyd + 8.0  # the test can fail
+
+
 # --- start -----------------------------------------------------------------------------------
 def test_hilbert_index_is_a_bijection_with_unit_steps():
     order = 4

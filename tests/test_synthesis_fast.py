@@ -266,3 +266,18 @@ def test_variance_force_matches_a_plain_sum():
         scale = family.scale.compensation * family.scale.weight / family.deviation.size
         plain -= scale * np.einsum("kj,kjd->kd", per_point, variance_slope)
     np.testing.assert_allclose(hood.variance_force, plain, rtol=1e-6, atol=1e-9 * np.abs(plain).max())  # float32 weights
+
+
+def test_tone_term_fast_path_equals_the_reference():
+    from synthesis.density_term import DensityTerm
+
+    fields = MapFields.build(split_map(), 1200, load_palette())
+    term = DensityTerm(split_map(), fields, weight=1e4, scale=3.0)
+    xy = np.random.default_rng(3).random((1200, 2)) * fields.domain
+    xy[:5] = [[0.0, 0.0], [fields.domain[0] * (1 - 1e-9), 0.3], [0.2, fields.domain[1] * (1 - 1e-9)], [0.5, 0.0], [1e-6, 0.2]]
+    loss, gradient = term.reference(xy)
+    added = np.full((1200, 2), 0.25)
+    fast_loss = term(xy, added)
+    assert fast_loss == pytest.approx(loss, rel=1e-12)
+    np.testing.assert_allclose(added - 0.25, gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())  # added into
+    assert term(xy) == pytest.approx(loss, rel=1e-12)
