@@ -36,6 +36,13 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
   ``sparse.scale`` and up to ``sparse.holes`` empty discs cut out of it; with
   ``sparse.empty_share`` > 0, that share of the items is empty (no points, a
   white map). Both at 0 (the default): items and config key unchanged.
+* Textures: with ``textures.share`` > 0, that share of the maps has its density
+  replaced by a procedural texture with fine detail (:mod:`data_gen.makers.textures`:
+  fractal and Gabor noise, hatching, Worley cells, rendered text, line art; weights
+  ``textures.kinds``), the correlation field kept. At 0 (the default): items and
+  config key unchanged. The other methods' labels are what the shipped palette decodes
+  from their points (:data:`data_gen.stipplers.LABELS`); the frozen test set's stipplers
+  (:data:`data_gen.stipplers.FROZEN_METHODS`) are refused.
 * Dark content: with ``dense.share`` > 0, that share of the other
   maps is darkened towards full ink, ``1 - density`` multiplied by a factor
   drawn log-uniformly in ``dense.scale``, so that nearly full ink, rare in the
@@ -85,6 +92,7 @@ class PairSettings:
     other_methods: dict  # {"share": float in [0, 1], "methods": {name: weight}} (see the module docstring)
     sparse: dict  # {"share", "scale": [lo, hi], "holes", "empty_share"} (see the module docstring)
     dense: dict  # {"share", "scale": [lo, hi]} (see the module docstring)
+    textures: dict  # {"share", "kinds": {name: weight}} (see the module docstring)
 
     @classmethod
     def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
@@ -96,7 +104,8 @@ class PairSettings:
                        schedule=str(cfg.synthesis.schedule), iterations=cfg.synthesis.iterations, palette=cfg.palette,
                        other_methods=other_methods_setting(OmegaConf.to_container(cfg.get("other_methods") or {}, resolve=True)),
                        sparse=sparse_setting(OmegaConf.to_container(cfg.get("sparse") or {}, resolve=True)),
-                       dense=dense_setting(OmegaConf.to_container(cfg.get("dense") or {}, resolve=True)))
+                       dense=dense_setting(OmegaConf.to_container(cfg.get("dense") or {}, resolve=True)),
+                       textures=textures_setting(OmegaConf.to_container(cfg.get("textures") or {}, resolve=True)))
         except (TypeError, ValueError) as exc:  # e.g. map_size=big: a user error, one line like the others
             raise PatternshopError(f"bad pair setting: {exc}") from exc
 
@@ -111,6 +120,11 @@ class PairSettings:
         content["dataset"] = {k: v for k, v in self.dataset.items() if k != "items"}  # only bounds how many
         if not self.other_methods["share"]:  # folders made before these options keep their key
             del content["other_methods"]
+        else:  # a method of weight 0 is never drawn (numpy's choice skips zero-width entries): not part of the key
+            content["other_methods"] = {**self.other_methods,
+                                        "methods": {k: v for k, v in self.other_methods["methods"].items() if v}}
+        if not self.textures["share"]:
+            del content["textures"]
         if not (self.sparse["share"] or self.sparse["empty_share"]):
             del content["sparse"]
         if not self.dense["share"]:
@@ -120,12 +134,15 @@ class PairSettings:
 
 def other_methods_setting(config: dict) -> dict:
     """``other_methods`` config -> {"share", "methods"} checked: share in [0, 1], known methods with weights >= 0."""
-    from data_gen.stipplers import LABELS
+    from data_gen.stipplers import DEFAULT_METHODS, FROZEN_METHODS, LABELS
 
     share = float(config.get("share", 0.0))
-    methods = {str(name): float(weight) for name, weight in (config.get("methods") or {name: 1.0 for name in LABELS}).items()}
+    methods = {str(name): float(weight) for name, weight in (config.get("methods") or {name: 1.0 for name in DEFAULT_METHODS}).items()}
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"other_methods.share must be in [0, 1], got {share:g}")
+    frozen = sorted(set(methods) & set(FROZEN_METHODS))
+    if frozen:
+        raise ValueError(f"other_methods.methods {frozen} belong to the frozen test set (docs/evaluation.md): never trained on")
     unknown = sorted(set(methods) - set(LABELS))
     if unknown:
         raise ValueError(f"unknown other_methods.methods {unknown}; choose from {', '.join(LABELS)}")
@@ -157,6 +174,29 @@ def sparse_setting(config: dict) -> dict:
     if holes < 0:
         raise ValueError(f"sparse.holes must be >= 0, got {holes}")
     return {"share": share, "scale": factor_range(config, "sparse", (0.03, 0.4)), "holes": holes, "empty_share": empty_share}
+
+
+def textures_setting(config: dict) -> dict:
+    """``textures`` config -> {"share", "kinds"} checked (share in [0, 1]; kinds of :data:`data_gen.makers.textures.TEXTURES`)."""
+    from data_gen.makers.textures import DEFAULT_TEXTURES, check_kinds
+
+    share = float(config.get("share", 0.0))
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"textures.share must be in [0, 1], got {share:g}")
+    return {"share": share, "kinds": check_kinds(config.get("kinds") or DEFAULT_TEXTURES)}
+
+
+def texture_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> LabMap:
+    """The map with its density replaced by a procedural texture (:mod:`data_gen.makers.textures`) for a
+    ``textures.share`` of the items, its correlation field kept. Draws from ``rng`` only when the share is > 0."""
+    share = settings.textures["share"]
+    if not share or rng.random() >= share:
+        return lab_map
+    from data_gen.makers.textures import texture_picture
+
+    rows, columns = lab_map.L.shape
+    density = texture_picture(max(rows, columns), rng, settings.textures["kinds"])[1][:rows, :columns]
+    return target_to_map(map_to_target(LabMap.from_density_latent(density, lab_map.latent())))  # 8-bit, as stored
 
 
 def dense_setting(config: dict) -> dict:
@@ -196,7 +236,7 @@ def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap
 
     Draws from ``rng`` only when ``other_methods.share`` > 0, so the items of share-0 folders are unchanged.
     """
-    from data_gen.stipplers import LABELS, METHODS
+    from data_gen.stipplers import FROZEN_METHODS, LABELS, METHODS
 
     share, weights = settings.other_methods["share"], settings.other_methods["methods"]
     if not share or rng.random() >= share:
@@ -204,7 +244,10 @@ def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap
     names = sorted(weights)
     probabilities = np.array([weights[name] for name in names])
     method = names[int(rng.choice(len(names), p=probabilities / probabilities.sum()))]
-    a, b = maker.palette.preset_ab()[LABELS[method]]
+    if method in FROZEN_METHODS:  # never reached through other_methods_setting; a guard for hand-made settings
+        raise PatternshopError(f"{method} is a frozen test-set stippler (docs/evaluation.md): never trained on")
+    label = LABELS[method]  # a preset name, or the (a, b) the shipped palette decodes from the method's points
+    a, b = maker.palette.preset_ab()[label] if isinstance(label, str) else label
     lab = np.array(lab_map.lab)
     lab[..., 1:] = (a, b)
     labelled = target_to_map(map_to_target(LabMap(lab)))  # 8-bit, as the stored target
@@ -217,7 +260,8 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
     from synthesis.synthesize import point_count, synthesize
 
     rng = np.random.default_rng([settings.seed, item])
-    lab_map = density_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
+    lab_map = texture_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
+    lab_map = density_variant(settings, lab_map, rng)
     target = map_to_target(lab_map)
     try:
         n = point_count(lab_map, settings.points_per_ink)

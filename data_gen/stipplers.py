@@ -23,9 +23,47 @@ method             what it does                                               la
 ``jitter``         a jittered grid warped by the density's inverse CDF        jitter
 ``clusters``       Thomas process: density-proportional parents, Gaussian     red
                    offspring at 0.6 local spacings
-``floyd_steinberg``  error-diffusion dithering on a grid of about n inked     (none)
-                   pixels (evaluation only: a lattice, no preset)
+``floyd_steinberg``  error-diffusion dithering (Pillow) on a grid of about n  measured
+                   inked pixels (:func:`ink_grid`)
+``jarvis``         error diffusion, Jarvis-Judice-Ninke kernel, raster scan   measured
+``floyd_steinberg_jitter``  Floyd-Steinberg, serpentine scan, each point      measured
+                   moved uniformly within +-0.35 pixel
+``bayer``          ordered dithering, 8 x 8 Bayer matrix at a random offset   measured
+``lloyd_few``      weighted Lloyd, 4 iterations (not converged)               measured
+``lloyd_many``     weighted Lloyd, 150 iterations                             measured
 =================  =========================================================  =======
+
+Frozen test-set methods (:data:`FROZEN_METHODS`; docs/evaluation.md), never used for training pairs:
+``sierra_serpentine`` (error diffusion, Sierra-3 kernel, serpentine scan) and ``capacity_voronoi``
+(capacity-constrained Voronoi stippling, :func:`capacity_lloyd_stipple`, 30 iterations).
+
+Measured labels (``python bench/stippler_labels.py --seeds 2``, file ``bench/stippler_labels.json``): each
+method stipples constant densities 0.2, 0.4 and 0.6 with 2048 points on the unit square at seeds 0 and 1;
+the shipped palette decodes each sample (:meth:`synthesis.palette.Palette.locate`, ``patternshop
+analyze``'s colour); mean a, b, spread = RMS distance of the six samples to their mean (ab units),
+nearest preset and its distance:
+
+=========================  ======  ======  ======  ========  =====
+method                     a       b       spread  nearest   dist.
+=========================  ======  ======  ======  ========  =====
+``random``                 2.8     -0.9    0.6     white     2.9
+``lloyd``                  18.6    -55.4   0.1     blue      6.4
+``poisson_disk``           25.0    -50.6   0.0     blue      1.7
+``jitter``                 19.8    -27.6   0.1     step      7.6
+``clusters``               18.7    56.8    47.5    red       48.9
+``floyd_steinberg``        21.1    -50.4   7.7     blue      3.3
+``jarvis``                 24.8    -41.0   4.9     step      9.1
+``floyd_steinberg_jitter`` 24.1    -43.0   5.2     blue      9.0
+``bayer``                  18.0    -50.6   10.0    blue      6.2
+``lloyd_few``              21.5    -53.6   0.4     blue      3.0
+``lloyd_many``             18.6    -55.4   0.1     blue      6.4
+``sierra_serpentine``      23.2    -41.8   4.6     step      8.6
+``capacity_voronoi``       2.2     -60.6   0.2     lloyd     8.2
+=========================  ======  ======  ======  ========  =====
+
+The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with
+their measured a, b. The raster methods are lattices decoded at one orientation: the palette is not
+rotation invariant (issue 28), so their labels are to be re-measured once it is.
 """
 
 from __future__ import annotations
@@ -41,6 +79,8 @@ CLUSTER_POINTS = 16  # Thomas offspring per parent on average (as synthesis.gene
 CLUSTER_STD_SPACINGS = 0.6  # offspring spread, local mean spacings
 DISK_RADIUS_SPACINGS = 0.7  # Poisson-disk radius, local r_max (hexagonal spacing)
 DISK_CANDIDATES = 12  # dart-throwing candidates per wanted point
+
+Method = Callable[[np.ndarray, int, tuple[float, float], np.random.Generator], np.ndarray]
 
 
 def r_max(n: int, area: float) -> float:
@@ -245,13 +285,130 @@ def floyd_steinberg(density: np.ndarray, n: int, domain: tuple[float, float], rn
     return (np.stack([col, row], 1) + 0.5) * (w / columns)
 
 
+# --- raster stipplers: a point at each inked pixel of a grid of about n / mean density pixels ----------------
+# Error-diffusion kernels: (row offset, column offset, weight) of the error passed on, weights summing to 1.
+ED_KERNELS: dict[str, tuple[tuple[int, int, float], ...]] = {
+    "floyd_steinberg": tuple((r, c, w / 16) for r, c, w in ((0, 1, 7), (1, -1, 3), (1, 0, 5), (1, 1, 1))),
+    "jarvis": tuple((r, c, w / 48) for r, c, w in ((0, 1, 7), (0, 2, 5), (1, -2, 3), (1, -1, 5), (1, 0, 7), (1, 1, 5),
+                                                   (1, 2, 3), (2, -2, 1), (2, -1, 3), (2, 0, 5), (2, 1, 3), (2, 2, 1))),
+    "sierra": tuple((r, c, w / 32) for r, c, w in ((0, 1, 5), (0, 2, 3), (1, -2, 2), (1, -1, 4), (1, 0, 5), (1, 1, 4),
+                                                   (1, 2, 2), (2, -1, 2), (2, 0, 3), (2, 1, 2))),
+}
+
+
+def ink_grid(density: np.ndarray, n: int, domain: tuple[float, float]) -> tuple[np.ndarray, tuple[float, float]]:
+    """(density area-resampled to a grid of about ``n / mean density`` (nearly square) pixels, pixel (width, height)
+    in domain units, the grid covering the domain exactly): its total ink is about n pixels, so a dither of it
+    inks about n pixels."""
+    from PIL import Image
+
+    w, h = domain
+    columns = max(1, round(math.sqrt(n / max(float(np.mean(density)), 1e-6) * w / h)))
+    rows = max(1, round(columns * h / w))
+    image = Image.fromarray(np.asarray(np.clip(density, 0, 1), np.float32), mode="F")
+    grid = np.asarray(image.resize((columns, rows), Image.Resampling.BOX), np.float64)
+    return np.clip(grid, 0.0, 1.0), (w / columns, h / rows)
+
+
+def pixel_points(inked: np.ndarray, pixel: tuple[float, float], rng: np.random.Generator | None = None, jitter: float = 0.0) -> np.ndarray:
+    """(k, 2) positions of the inked pixels' centres (optionally moved uniformly by up to ``jitter`` pixels each way)."""
+    row, col = np.nonzero(inked)
+    xy = np.stack([col, row], 1) + 0.5
+    if jitter and rng is not None:
+        xy = xy + (rng.random(xy.shape) - 0.5) * (2.0 * jitter)
+    return xy * np.asarray(pixel)
+
+
+def diffuse_error(grid: np.ndarray, kernel: tuple[tuple[int, int, float], ...], serpentine: bool = False) -> np.ndarray:
+    """(H, W) bool: error-diffusion dither of ``grid`` (ink in [0, 1]) with ``kernel``; threshold 0.5; raster
+    order, or serpentine (alternate rows right to left, the kernel mirrored)."""
+    H, W = grid.shape
+    pad = 2
+    work = np.zeros((H + pad, W + 2 * pad))
+    work[:H, pad:pad + W] = grid
+    inked = np.zeros((H, W), bool)
+    for row in range(H):
+        backward = serpentine and row % 2 == 1
+        line = work[row]
+        for col in (range(W - 1, -1, -1) if backward else range(W)):
+            value = line[col + pad]
+            on = value >= 0.5
+            inked[row, col] = on
+            error = value - (1.0 if on else 0.0)
+            for dr, dc, weight in kernel:
+                work[row + dr, col + pad + (-dc if backward else dc)] += error * weight
+    return inked
+
+
+def _error_diffusion(kernel: str, serpentine: bool = False) -> Method:
+    def stipple(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+        grid, pixel = ink_grid(density, n, domain)
+        return pixel_points(diffuse_error(grid, ED_KERNELS[kernel], serpentine), pixel)
+
+    stipple.__name__ = f"{kernel}{'_serpentine' if serpentine else ''}_error_diffusion"
+    stipple.__doc__ = (f"About n points: {kernel} error diffusion ({'serpentine' if serpentine else 'raster'} scan) of the density "
+                       "on the grid of :func:`ink_grid`, a point at each inked pixel's centre. ``rng`` is unused.")
+    return stipple
+
+
+jarvis_error_diffusion = _error_diffusion("jarvis")
+sierra_serpentine_error_diffusion = _error_diffusion("sierra", serpentine=True)
+
+
+def jittered_floyd_steinberg(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """:func:`floyd_steinberg` (serpentine here, own code) with each point moved uniformly within +-0.35 pixel."""
+    grid, pixel = ink_grid(density, n, domain)
+    return pixel_points(diffuse_error(grid, ED_KERNELS["floyd_steinberg"], serpentine=True), pixel, rng, jitter=0.35)
+
+
+def bayer_matrix(order: int) -> np.ndarray:
+    """(2^order, 2^order) Bayer threshold matrix in (0, 1): (index + 0.5) / size^2."""
+    matrix = np.zeros((1, 1))
+    for _ in range(order):
+        matrix = np.block([[4 * matrix, 4 * matrix + 2], [4 * matrix + 3, 4 * matrix + 1]])
+    return (matrix + 0.5) / matrix.size
+
+
+def bayer_dither(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """About n points: ordered dithering (8 x 8 Bayer matrix, at a random offset from ``rng``) of the density on the
+    grid of :func:`ink_grid`, a point at each inked pixel's centre."""
+    grid, pixel = ink_grid(density, n, domain)
+    H, W = grid.shape
+    dy, dx = rng.integers(8, size=2)
+    threshold = np.roll(bayer_matrix(3), (int(dy), int(dx)), axis=(0, 1))
+    threshold = np.tile(threshold, (H // 8 + 1, W // 8 + 1))[:H, :W]
+    return pixel_points(grid > threshold, pixel)
+
+
+def _lloyd_iterations(iterations: int) -> Method:
+    def stipple(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+        supersample = max(1, math.ceil(math.sqrt(8 * n / np.size(density))))
+        return lloyd_stipple(density, n, domain, iterations=iterations, seed=int(rng.integers(2**31)), supersample=supersample)
+
+    stipple.__name__ = f"lloyd_{iterations}"
+    stipple.__doc__ = f":func:`lloyd_stipple` with {iterations} iterations on the density supersampled to >= 8 pixels per point."
+    return stipple
+
+
+lloyd_few = _lloyd_iterations(4)
+lloyd_many = _lloyd_iterations(150)
+
+
+def capacity_voronoi(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """:func:`capacity_lloyd_stipple` (equal-ink power cells) with 30 iterations on the density supersampled to
+    >= 8 pixels per point. FROZEN: test set only (:data:`FROZEN_METHODS`)."""
+    dens = np.asarray(density, np.float64)
+    supersample = max(1, math.ceil(math.sqrt(8 * n / dens.size)))
+    if supersample > 1:
+        dens = np.kron(dens, np.ones((supersample, supersample)))
+    return capacity_lloyd_stipple(dens, n, domain, iterations=30, seed=int(rng.integers(2**31)))[0]
+
+
 def _lloyd(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
     """:func:`lloyd_stipple` with 40 iterations on the density supersampled to at least 8 pixels per point."""
     supersample = max(1, math.ceil(math.sqrt(8 * n / np.size(density))))
     return lloyd_stipple(density, n, domain, iterations=40, seed=int(rng.integers(2**31)), supersample=supersample)
 
-
-Method = Callable[[np.ndarray, int, tuple[float, float], np.random.Generator], np.ndarray]
 
 METHODS: dict[str, Method] = {
     "random": random_stipple,
@@ -260,5 +417,24 @@ METHODS: dict[str, Method] = {
     "jitter": warped_jitter,
     "clusters": thomas_clusters,
     "floyd_steinberg": floyd_steinberg,
+    "jarvis": jarvis_error_diffusion,
+    "floyd_steinberg_jitter": jittered_floyd_steinberg,
+    "bayer": bayer_dither,
+    "lloyd_few": lloyd_few,
+    "lloyd_many": lloyd_many,
 }
-LABELS = {"random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "step", "clusters": "red"}  # jitter: merged into step
+FROZEN_METHODS: dict[str, Method] = {
+    "sierra_serpentine": sierra_serpentine_error_diffusion,
+    "capacity_voronoi": capacity_voronoi,
+}
+"""The frozen test set's stipplers (docs/evaluation.md): never in :data:`METHODS` or :data:`LABELS`; the training-pair
+code (:func:`data_gen.pairs.other_methods_setting`, :func:`data_gen.pairs.other_method_points`) refuses them."""
+DEFAULT_METHODS = ("random", "lloyd", "poisson_disk", "jitter", "clusters")  # other_methods.methods when none are given
+LABELS: dict[str, str | tuple[float, float]] = {
+    "random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "step", "clusters": "red",  # jitter: merged into step
+    # measured (bench/stippler_labels.py, shipped palette): the mean a, b decoded from each method's stationary samples
+    "floyd_steinberg": (21.1, -50.4), "jarvis": (24.8, -41.0), "floyd_steinberg_jitter": (24.1, -43.0),
+    "bayer": (18.0, -50.6), "lloyd_few": (21.5, -53.6), "lloyd_many": (18.6, -55.4),
+}
+"""Training label of each method: a preset name of the pairs' palette, or the (a, b) measured by decoding the method's
+stationary samples with the shipped palette (the module docstring's table)."""

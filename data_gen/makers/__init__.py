@@ -17,6 +17,7 @@ name              source layout under ``root``                  chroma
 ``folder``        any folder of images (recursive)              uniform or Gaussian field
 ``treecover``     Tree Cover Density GeoTIFFs, tiled            uniform or Gaussian field
 ``procedural``    nothing: pictures drawn from the seed         uniform, segments, Gaussians
+``textures``      nothing: procedural textures (fine detail)    uniform or Gaussian field
 ================  ============================================  ==============================
 
 Use :func:`build_maker` with a dataset config (``conf/dataset/NAME.yaml``).
@@ -37,6 +38,7 @@ MAKERS = {
     "folder": "data_gen.makers.folder:FolderMaker",
     "treecover": "data_gen.makers.treecover:TreeCoverMaker",
     "procedural": "data_gen.makers.procedural:ProceduralMaker",
+    "textures": "data_gen.makers.textures:TexturesMaker",
 }
 
 __all__ = ["MAKERS", "MapMaker", "SourceError", "build_maker"]
