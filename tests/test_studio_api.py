@@ -316,6 +316,33 @@ def test_synthesize_status_points_and_progress(opened):
     assert opened.get("/api/points.json", params={"since": "x"}).status_code == 400
 
 
+def test_first_points_are_there_when_the_synthesis_request_is_answered(opened):
+    """Progressive delivery: the answer to POST /api/synthesize already has points to show (a density-matched
+    preview), long before the iterations end; then the synthesis's own frames follow with growing numbers."""
+    response = opened.post("/api/synthesize", json={"points": 2000, "seed": 5, "iterations": 100000})
+    assert response.status_code == 202
+    binary = opened.get("/api/points.bin", params={"since": 0})
+    assert binary.status_code == 200, "no points right after the synthesis request"
+    meta = json.loads(binary.headers["X-Points"])
+    assert not meta["final"] and meta["n"] == 2000 and meta["iteration"] < meta["total"] == 100000
+    assert meta["status"]["job"]["state"] == "running" and meta["status"]["job"]["first_points_seconds"] is not None
+    xy = np.frombuffer(binary.content, "<f4").reshape(-1, 2)
+    assert xy.shape == (2000, 2) and np.all(xy >= 0) and np.all(xy[:, 0] <= 1) and np.all(xy[:, 1] <= 2 / 3)
+    lab = current_lab(opened)  # the preview follows the density: more points in the darker half of the map
+    density = 1 - lab[..., 0] / 100
+    left = density[:, : lab.shape[1] // 2].sum() / density.sum()
+    assert abs(np.mean(xy[:, 0] < 0.5) - left) < 0.05
+    deadline = time.monotonic() + 30
+    while True:  # the synthesis's own frames follow while it still runs
+        later = opened.get("/api/points.bin", params={"since": meta["frame"]})
+        if later.status_code == 200:
+            break
+        assert time.monotonic() < deadline, "no frame from the synthesis"
+        time.sleep(0.05)
+    assert json.loads(later.headers["X-Points"])["frame"] > meta["frame"]
+    assert opened.post("/api/cancel").json()["cancelled"]
+
+
 def test_an_edit_cancels_the_running_synthesis(opened):
     opened.post("/api/synthesize", json={"points": 2000, "iterations": 100000})
     deadline = time.monotonic() + 30

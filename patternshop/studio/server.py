@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 from starlette.applications import Starlette
+from starlette.background import BackgroundTask
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 from starlette.responses import HTMLResponse, JSONResponse, Response
@@ -128,6 +129,7 @@ class Studio:
         self._palette_lock = threading.Lock()
         self._palette_png: bytes | None = None
         self.activity: str | None = None  # what a long request (inference, a photo) is doing, for the status line
+        self.warm_up_on_load = False  # serve(): warm the synthesiser up once the page has loaded
 
     # --- the palette -------------------------------------------------------------------------------------
     def palette(self) -> Any:
@@ -457,8 +459,8 @@ async def points_json(request: Request) -> Response:
 
     def encode() -> dict[str, Any]:
         return {"frame": frame.number, "job": frame.job, "version": frame.version, "iteration": frame.iteration,
-                "total": frame.total, "final": frame.final, "n": int(len(frame.xy)), "domain": list(frame.domain),
-                "points": np.round(frame.xy, 5).ravel().tolist(), "status": studio.status()}
+                "total": frame.total, "final": frame.final, "preview": frame.preview, "n": int(len(frame.xy)),
+                "domain": list(frame.domain), "points": np.round(frame.xy, 5).ravel().tolist(), "status": studio.status()}
 
     return JSONResponse(await run_in_threadpool(encode))
 
@@ -466,20 +468,28 @@ async def points_json(request: Request) -> Response:
 async def points_bin(request: Request) -> Response:
     """As ``points.json``, binary: the body is the frame's points as float32 little-endian x, y pairs (204 and
     no body when nothing is newer than ``since``); the header ``X-Points`` carries the rest as JSON (ASCII):
-    frame, job, version, iteration, total, final, n, domain, status. About 100x cheaper to serve than JSON
+    frame, job, version, iteration, total, final, preview, n, domain, status. About 100x cheaper to serve than JSON
     (which matters: the synthesis shares the interpreter with the server)."""
     studio: Studio = request.app.state.studio
     since = _int_param(request, "since", 0)
+    # the page asks for points since 0 while it loads: warm the synthesiser up 0.5 s later (after the page's
+    # other requests, not to delay them)
+    warm = None
+    if since == 0 and studio.warm_up_on_load:
+        timer = threading.Timer(0.5, studio.synthesizer.warm_up)
+        timer.daemon = True
+        warm = BackgroundTask(timer.start)
     frame = studio.synthesizer.frame_since(since)
     if frame is None:
         latest = studio.synthesizer.latest_frame()
         meta = {"frame": latest.number if latest else 0, "n": None, "status": studio.status()}
-        return Response(status_code=204, headers={"X-Points": json.dumps(meta), "Cache-Control": "no-store"})
+        return Response(status_code=204, headers={"X-Points": json.dumps(meta), "Cache-Control": "no-store"},
+                        background=warm)
     meta = {"frame": frame.number, "job": frame.job, "version": frame.version, "iteration": frame.iteration,
-            "total": frame.total, "final": frame.final, "n": int(len(frame.xy)), "domain": list(frame.domain),
-            "status": studio.status()}
+            "total": frame.total, "final": frame.final, "preview": frame.preview, "n": int(len(frame.xy)),
+            "domain": list(frame.domain), "status": studio.status()}
     return Response(np.ascontiguousarray(frame.xy, "<f4").tobytes(), media_type="application/octet-stream",
-                    headers={"X-Points": json.dumps(meta), "Cache-Control": "no-store"})
+                    headers={"X-Points": json.dumps(meta), "Cache-Control": "no-store"}, background=warm)
 
 
 async def palette_info(request: Request) -> Response:
@@ -650,6 +660,8 @@ def serve(project: Project, *, host: str = "127.0.0.1", port: int = 8765, port_t
     announce(f"project: {project.folder} (Ctrl+C stops the server; every edit is already saved)")
     if open_browser:
         threading.Timer(0.3, webbrowser.open, [url]).start()
+    studio.warm_up_on_load = True  # the page's first points request starts the warm-up (see points_bin)
+    studio.synthesizer.warm_up(delay=3.0)  # or 3 s from now: the first synthesis then starts at once
     config = uvicorn.Config(app, log_level="warning", lifespan="off", access_log=False)
     try:
         uvicorn.Server(config).run(sockets=[sock])

@@ -74,20 +74,19 @@ function enqueue(task) {
 }
 
 // --- colour -------------------------------------------------------------------------------------------------
-function labToRgb(L, a, b, out, offset) {
+function labInverse(v) { return v > 24.0 / 116.0 ? v * v * v : (v - 16.0 / 116.0) / (841.0 / 108.0); }
+
+function linearToSrgb8(lin) {
+  const s = lin <= 0.0031308 ? lin * 12.92 : 1.055 * Math.pow(Math.max(lin, 0.0031308), 1.0 / 2.4) - 0.055;
+  return Math.round(Math.min(1, Math.max(0, s)) * 255);
+}
+
+function labToRgb(L, a, b, out, offset) {  // no arrays allocated: it runs once per pixel of a repaint
   const fy = (L + 16.0) / 116.0;
-  const f = [fy + a / 500.0, fy, fy - b / 200.0];
-  const xyz = [0, 0, 0];
-  for (let i = 0; i < 3; i++) {
-    const v = f[i];
-    xyz[i] = (v > 24.0 / 116.0 ? v * v * v : (v - 16.0 / 116.0) / (841.0 / 108.0)) * D65[i];
-  }
+  const x = labInverse(fy + a / 500.0) * D65[0], y = labInverse(fy) * D65[1], z = labInverse(fy - b / 200.0) * D65[2];
   for (let c = 0; c < 3; c++) {
     const m = XYZ_TO_SRGB[c];
-    const lin = m[0] * xyz[0] + m[1] * xyz[1] + m[2] * xyz[2];
-    let s = lin <= 0.0031308 ? lin * 12.92 : 1.055 * Math.pow(Math.max(lin, 0.0031308), 1.0 / 2.4) - 0.055;
-    s = Math.min(1, Math.max(0, s));
-    out[offset + c] = Math.round(s * 255);
+    out[offset + c] = linearToSrgb8(m[0] * x + m[1] * y + m[2] * z);
   }
   out[offset + 3] = 255;
 }
@@ -119,10 +118,16 @@ async function loadMap() {
 function repaintRegion(x0, y0, x1, y1) {
   const {width, lab, image, canvas} = S.map;
   const data = image.data;
+  let L = NaN, a = NaN, b = NaN, last = -1;  // a run of equal colours (flat areas) is converted once
   for (let y = y0; y < y1; y++) {
     for (let x = x0; x < x1; x++) {
       const i = y * width + x;
-      labToRgb(lab[3 * i], lab[3 * i + 1], lab[3 * i + 2], data, 4 * i);
+      if (last >= 0 && lab[3 * i] === L && lab[3 * i + 1] === a && lab[3 * i + 2] === b) {
+        data[4 * i] = data[last]; data[4 * i + 1] = data[last + 1]; data[4 * i + 2] = data[last + 2]; data[4 * i + 3] = 255;
+      } else {
+        L = lab[3 * i]; a = lab[3 * i + 1]; b = lab[3 * i + 2]; last = 4 * i;
+        labToRgb(L, a, b, data, last);
+      }
     }
   }
   canvas.getContext("2d").putImageData(image, 0, 0, x0, y0, x1 - x0, y1 - y0);
@@ -679,7 +684,6 @@ async function loadPalette() {
     box.append(button);
   }
   showCurrentColour();
-  hoverPalette(S.settings.ab);
 }
 
 // --- open, new, expand, export ------------------------------------------------------------------------------
@@ -800,6 +804,8 @@ async function start() {
     const state = await api("/api/state");
     S.settings = state.settings;
     applySettingsToControls();
+    const palette = loadPalette().catch(fail);  // asked for while the map loads
+    const points = fetchPoints(0);
     if (state.width) {
       await loadMap();
       const view = state.settings.view;
@@ -807,11 +813,12 @@ async function start() {
     }
     afterChangeButtons(state);
     setStatus(state.status.text);
-    await loadPalette().catch(fail);
-    const frame = await fetchPoints(0);
+    await palette;
+    const frame = await points;
     if (frame.points) showPoints(frame);
     if (state.status.job.state === "running") startPolling();
     document.body.dataset.ready = "true";  // for tests: the page has its state
+    if (S.presets) hoverPalette(S.settings.ab);  // the current colour's pattern: not needed to start working
   } catch (error) { fail(error); }
 }
 
