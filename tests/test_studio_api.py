@@ -17,18 +17,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("starlette")
-pytest.importorskip("httpx")
+from helpers import random_map
+from PIL import Image
+from starlette.testclient import TestClient
 
-from helpers import random_map  # noqa: E402
-from PIL import Image  # noqa: E402
-from starlette.testclient import TestClient  # noqa: E402
-
-from patternshop.studio.project import Project  # noqa: E402
-from patternshop.studio.server import Studio, create_app  # noqa: E402
-from patternshop.studio.tools import apply_edit, stroke_weight  # noqa: E402
-from synthesis.labmap import LabMap  # noqa: E402
-from synthesis.mapio import read_map, write_tiff  # noqa: E402
+from patternshop.studio.project import Project
+from patternshop.studio.server import Studio, create_app
+from patternshop.studio.tools import apply_edit, stroke_weight
+from synthesis.labmap import LabMap
+from synthesis.mapio import read_map, write_tiff
 
 ROOT = Path(__file__).resolve().parent.parent
 BASE = "http://127.0.0.1:8765"
