@@ -63,7 +63,7 @@ method                     a       b       spread  nearest   dist.
 
 The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with
 their measured a, b. The raster methods are lattices decoded at one orientation: the palette is not
-rotation invariant (issue 28), so their labels are to be re-measured once it is.
+rotation invariant (docs/palette.md), so their labels are to be re-measured once it is.
 """
 
 from __future__ import annotations

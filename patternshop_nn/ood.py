@@ -342,7 +342,7 @@ def evaluate_ood(model_path: Path, palette: Palette, quick: bool, seed: int, pre
 
 
 def targets(results: dict) -> list[dict]:
-    """Issue 14's targets: (figure, target, measured, met)."""
+    """The network's targets: (figure, target, measured, met)."""
     stip, stat, inv = results["stipplings"], results["stationary"], results["inventions"]
     locked = max(max(row[f"L_locked_{p}"], row[f"ab_locked_{p}"]) for row in stat for p in PHASES)
     ratios = [row["ratio"] for row in results["point_counts"]]

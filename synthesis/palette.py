@@ -139,7 +139,7 @@ class Palette:
         The arrays are read lazily: the file's bytes are read at once (so a later change to the file cannot mix
         two palettes), each array is decompressed and converted on its first use. Synthesis uses only ``radii``,
         ``lut`` and ``dispersion_lut``; the exemplars and the feature reduction (about half the file) are for
-        decoding, so a synthesis never pays for them (issue 27: start-up).
+        decoding, so a synthesis never pays for them.
         """
         path = Path(path) if path is not None else DEFAULT_PALETTE
         require_file(path, "a palette file", missing="palette not found (build it with 'python -m data_gen.palette')")

@@ -1,4 +1,4 @@
-"""Procedural texture pictures with fine detail: the pictures the network must not blur (issue 28).
+"""Procedural texture pictures with fine detail: the pictures the network must not blur.
 
 One function per texture, ``(size, rng) -> (size, size) float32 density in [0, 1]`` (1 = full ink),
 deterministic given ``rng``:
