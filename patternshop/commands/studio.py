@@ -7,9 +7,6 @@ from pathlib import Path
 
 from patternshop.commands import check_map_input, check_point_file, positive_float, positive_int
 
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
-
-
 def _port(text: str) -> int:
     try:
         value = int(text)
@@ -54,10 +51,10 @@ def run_studio(args: argparse.Namespace) -> None:
     import warnings
 
     from patternshop.studio.project import Project, default_project_dir
-    from patternshop.studio.server import serve
+    from patternshop.studio.server import LOOPBACK_HOSTS, serve
     from synthesis.errors import PatternshopWarning
 
-    if args.host not in LOOPBACK:
+    if args.host not in LOOPBACK_HOSTS:
         warnings.warn(f"listening on {args.host}: other machines can reach the studio; only its token protects it",
                       PatternshopWarning, stacklevel=1)
     lab = None

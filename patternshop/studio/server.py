@@ -128,6 +128,7 @@ class Studio:
         self.synthesizer = Synthesizer(project, max_memory_gb)
         self._palette_lock = threading.Lock()
         self._palette_png: bytes | None = None
+        self._map_png: tuple[int, bytes] | None = None  # (version, sRGB PNG) of the current map
         self.activity: str | None = None  # what a long request (inference, a photo) is doing, for the status line
         self.warm_up_on_load = False  # serve(): warm the synthesiser up once the page has loaded
 
@@ -147,6 +148,21 @@ class Studio:
                     draw_palette(self.palette(), path)
                     self._palette_png = path.read_bytes()
             return self._palette_png
+
+    def map_png(self) -> tuple[bytes, int]:
+        """(the current map as an 8-bit sRGB PNG, its version), encoded once per version (the page and the
+        map.png export ask for it after every edit; the array of a version never changes)."""
+        from PIL import Image
+
+        from synthesis.labmap import LabMap
+
+        lab, version = self.project.current()
+        cached = self._map_png
+        if cached is None or cached[0] != version:
+            buffer = io.BytesIO()
+            Image.fromarray(LabMap(lab).to_srgb8()).save(buffer, format="PNG")  # as synthesis.mapio.write_preview
+            cached = self._map_png = (version, buffer.getvalue())
+        return cached[1], version
 
     # --- status ------------------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -265,18 +281,8 @@ async def get_status(request: Request) -> Response:
 
 
 async def map_png(request: Request) -> Response:
-    from PIL import Image
-
-    from synthesis.labmap import LabMap
-
-    lab, version = request.app.state.studio.project.current()
-
-    def encode() -> bytes:
-        buffer = io.BytesIO()
-        Image.fromarray(LabMap(lab).to_srgb8()).save(buffer, format="PNG")
-        return buffer.getvalue()
-
-    return Response(await run_in_threadpool(encode), media_type="image/png",
+    data, version = await run_in_threadpool(request.app.state.studio.map_png)
+    return Response(data, media_type="image/png",
                     headers={"X-Map-Version": str(version), "Cache-Control": "no-store"})
 
 
@@ -458,11 +464,16 @@ async def points_json(request: Request) -> Response:
         return JSONResponse({"frame": latest.number if latest else 0, "points": None, "status": studio.status()})
 
     def encode() -> dict[str, Any]:
-        return {"frame": frame.number, "job": frame.job, "version": frame.version, "iteration": frame.iteration,
-                "total": frame.total, "final": frame.final, "preview": frame.preview, "n": int(len(frame.xy)),
-                "domain": list(frame.domain), "points": np.round(frame.xy, 5).ravel().tolist(), "status": studio.status()}
+        return {**_frame_meta(studio, frame), "points": np.round(frame.xy, 5).ravel().tolist()}
 
     return JSONResponse(await run_in_threadpool(encode))
+
+
+def _frame_meta(studio: Studio, frame: Any) -> dict[str, Any]:
+    """What points.json and points.bin say about a frame besides its points."""
+    return {"frame": frame.number, "job": frame.job, "version": frame.version, "iteration": frame.iteration,
+            "total": frame.total, "final": frame.final, "preview": frame.preview, "n": int(len(frame.xy)),
+            "domain": list(frame.domain), "status": studio.status()}
 
 
 async def points_bin(request: Request) -> Response:
@@ -485,11 +496,9 @@ async def points_bin(request: Request) -> Response:
         meta = {"frame": latest.number if latest else 0, "n": None, "status": studio.status()}
         return Response(status_code=204, headers={"X-Points": json.dumps(meta), "Cache-Control": "no-store"},
                         background=warm)
-    meta = {"frame": frame.number, "job": frame.job, "version": frame.version, "iteration": frame.iteration,
-            "total": frame.total, "final": frame.final, "preview": frame.preview, "n": int(len(frame.xy)),
-            "domain": list(frame.domain), "status": studio.status()}
     return Response(np.ascontiguousarray(frame.xy, "<f4").tobytes(), media_type="application/octet-stream",
-                    headers={"X-Points": json.dumps(meta), "Cache-Control": "no-store"}, background=warm)
+                    headers={"X-Points": json.dumps(_frame_meta(studio, frame)), "Cache-Control": "no-store"},
+                    background=warm)
 
 
 async def palette_info(request: Request) -> Response:
@@ -541,10 +550,10 @@ def _stem(studio: Studio) -> str:
 
 
 async def export(request: Request) -> Response:
-    """Downloads written by the CLI's writers: map.tif (16-bit), map8.tif, map.png (sRGB preview),
-    points.txt/.csv/.npy/.svg/.png."""
+    """Downloads written by the CLI's writers: map.tif (16-bit), map8.tif, map.png (sRGB preview, as
+    ``write_preview`` writes it), points.txt/.csv/.npy/.svg/.png."""
     from synthesis.labmap import LabMap
-    from synthesis.mapio import write_map, write_preview
+    from synthesis.mapio import write_map
     from synthesis.points import read_points, write_points
     from synthesis.render import render_png, write_svg
 
@@ -559,14 +568,14 @@ async def export(request: Request) -> Response:
         return error(404, "no points yet: synthesize first")
 
     def write() -> bytes:
+        if name == "map.png":  # the sRGB preview the page shows, encoded once per map version
+            return studio.map_png()[0]
         with tempfile.TemporaryDirectory(dir=studio.project.folder) as folder:
             target = Path(folder) / name
             if name == "map.tif":
                 write_map(LabMap(lab), target, bits=16)
             elif name == "map8.tif":
                 write_map(LabMap(lab), target, bits=8)
-            elif name == "map.png":
-                write_preview(LabMap(lab), target)
             else:
                 points = read_points(points_path)
                 if name == "points.svg":
