@@ -77,11 +77,10 @@ def run_convert(args: argparse.Namespace) -> int:
 
     from export.convert import FAILED, SKIPPED
     from patternshop.api import convert
-    from synthesis.errors import PatternshopError, PatternshopWarning
+    from synthesis.errors import PatternshopWarning
 
     check_palette_file(args.palette)
-    if args.resynthesize and args.model:
-        raise PatternshopError("--model does not apply with --resynthesize (maps to points uses the synthesiser)")
+    # api.convert refuses a --model with --resynthesize
     results = convert(args.in_dir, args.out_dir, resynthesize=args.resynthesize, model=args.model, workers=args.workers,
                       threads=args.threads, scheduler=args.scheduler, batch_size=args.batch_size, overwrite=args.overwrite,
                       max_memory_gb=args.max_memory_gb, progress_bar=not args.no_progress and sys.stderr.isatty(),

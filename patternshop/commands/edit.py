@@ -65,8 +65,10 @@ def _fill(words: list[str] | None) -> str | tuple[float, float, float] | None:
     from synthesis.edits import FILL_MODES
     from synthesis.errors import PatternshopError
 
-    if words is None or (len(words) == 1 and words[0] in FILL_MODES):
-        return words[0] if words else None
+    if words is None:
+        return None
+    if len(words) == 1 and words[0] in FILL_MODES:
+        return words[0]
     if len(words) != 3:
         raise PatternshopError(f"--fill takes one of {', '.join(FILL_MODES)} or three numbers L A B, got {' '.join(words)}")
     try:
