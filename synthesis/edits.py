@@ -18,7 +18,7 @@ from PIL import Image
 from synthesis.errors import PatternshopError, require_file
 from synthesis.labmap import AB_RANGE, L_RANGE, LabMap
 from synthesis.patchfill import content_aware_fill
-from synthesis.photo import check_ab
+from synthesis.photo import _reading, check_ab
 
 GRADIENT_MODES = ("set", "multiply")
 FILL_MODES = ("edge", "content-aware")  # expand's fills besides a colour
@@ -52,15 +52,12 @@ def read_region(path: PathLike, shape: tuple[int, int]) -> np.ndarray:
         PatternshopError: missing or unreadable image, or not (H, W) pixels.
     """
     require_file(path, "a mask image file")
-    try:
-        with Image.open(path) as image:
-            image.load()
-            if image.mode in ("I;16", "I;16B", "I;16L", "I"):
-                region = np.asarray(image, np.float64) / 65535.0
-            else:
-                region = np.asarray(image.convert("L"), np.float64) / 255.0
-    except (OSError, ValueError) as exc:  # PIL's UnidentifiedImageError is an OSError
-        raise PatternshopError(f"{path}: not a readable mask image ({exc})") from exc
+    with _reading(path, "mask image"), Image.open(path) as image:
+        image.load()
+        if image.mode in ("I;16", "I;16B", "I;16L", "I"):
+            region = np.asarray(image, np.float64) / 65535.0
+        else:
+            region = np.asarray(image.convert("L"), np.float64) / 255.0
     if region.shape != tuple(shape):
         raise PatternshopError(f"{path}: mask is {region.shape[1]}x{region.shape[0]} px, the map {shape[1]}x{shape[0]} px "
                                "(make the mask at the map's size)")

@@ -29,7 +29,7 @@ from scipy import ndimage
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
-from synthesis.pcf import neighbour_cutoff, pcf_radii, r_max, uniform_expectation
+from synthesis.pcf import neighbour_cutoff, r_max, uniform_expectation
 
 GUIDE_BANDWIDTH = 0.005  # variance of the guide (latent z) similarity, per dimension
 DENSITY_FLOOR = 1e-3  # relative to the mean density: the intensity's floor (white areas expect almost no neighbours)
