@@ -241,9 +241,9 @@ def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap
     share, weights = settings.other_methods["share"], settings.other_methods["methods"]
     if not share or rng.random() >= share:
         return None
-    names = sorted(weights)
-    probabilities = np.array([weights[name] for name in names])
-    method = names[int(rng.choice(len(names), p=probabilities / probabilities.sum()))]
+    from data_gen.makers.textures import choose
+
+    method = choose(rng, weights)
     if method in FROZEN_METHODS:  # never reached through other_methods_setting; a guard for hand-made settings
         raise PatternshopError(f"{method} is a frozen test-set stippler (docs/evaluation.md): never trained on")
     label = LABELS[method]  # a preset name, or the (a, b) the shipped palette decodes from the method's points

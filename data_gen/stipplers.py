@@ -271,18 +271,23 @@ def thomas_clusters(density: np.ndarray, n: int, domain: tuple[float, float], rn
     return np.clip(xy, 0.0, np.nextafter(np.asarray(domain), 0.0))
 
 
+def _grid_shape(density: np.ndarray, n: int, domain: tuple[float, float]) -> tuple[int, int]:
+    """(columns, rows) of the raster stipplers' grid: about ``n / mean density`` nearly square pixels over ``domain``."""
+    w, h = domain
+    columns = max(1, round(math.sqrt(n / max(float(np.mean(density)), 1e-6) * w / h)))
+    return columns, max(1, round(columns * h / w))
+
+
 def floyd_steinberg(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
     """About n points: Floyd-Steinberg dithering (Pillow) of the density on a grid of ``n / mean density`` pixels,
     a point at the centre of each inked pixel. ``rng`` is unused (the dither is deterministic)."""
     from PIL import Image
 
-    w, h = domain
-    columns = max(1, round(math.sqrt(n / max(float(np.mean(density)), 1e-6) * w / h)))
-    rows = max(1, round(columns * h / w))
+    columns, rows = _grid_shape(density, n, domain)
     grey = Image.fromarray(np.round(255 * (1 - np.clip(density, 0, 1))).astype(np.uint8)).resize((columns, rows), Image.Resampling.BOX)
     inked = np.asarray(grey.convert("1", dither=Image.Dither.FLOYDSTEINBERG)) == 0
     row, col = np.nonzero(inked)
-    return (np.stack([col, row], 1) + 0.5) * (w / columns)
+    return (np.stack([col, row], 1) + 0.5) * (domain[0] / columns)
 
 
 # --- raster stipplers: a point at each inked pixel of a grid of about n / mean density pixels ----------------
@@ -303,8 +308,7 @@ def ink_grid(density: np.ndarray, n: int, domain: tuple[float, float]) -> tuple[
     from PIL import Image
 
     w, h = domain
-    columns = max(1, round(math.sqrt(n / max(float(np.mean(density)), 1e-6) * w / h)))
-    rows = max(1, round(columns * h / w))
+    columns, rows = _grid_shape(density, n, domain)
     image = Image.fromarray(np.asarray(np.clip(density, 0, 1), np.float32), mode="F")
     grid = np.asarray(image.resize((columns, rows), Image.Resampling.BOX), np.float64)
     return np.clip(grid, 0.0, 1.0), (w / columns, h / rows)
@@ -380,10 +384,15 @@ def bayer_dither(density: np.ndarray, n: int, domain: tuple[float, float], rng: 
     return pixel_points(grid > threshold, pixel)
 
 
+def _supersample(density: np.ndarray, n: int) -> int:
+    """The supersampling factor giving at least 8 pixels per point (the Lloyd stipplers' centroids live on the grid)."""
+    return max(1, math.ceil(math.sqrt(8 * n / np.size(density))))
+
+
 def _lloyd_iterations(iterations: int) -> Method:
     def stipple(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
-        supersample = max(1, math.ceil(math.sqrt(8 * n / np.size(density))))
-        return lloyd_stipple(density, n, domain, iterations=iterations, seed=int(rng.integers(2**31)), supersample=supersample)
+        return lloyd_stipple(density, n, domain, iterations=iterations, seed=int(rng.integers(2**31)),
+                             supersample=_supersample(density, n))
 
     stipple.__name__ = f"lloyd_{iterations}"
     stipple.__doc__ = f":func:`lloyd_stipple` with {iterations} iterations on the density supersampled to >= 8 pixels per point."
@@ -398,16 +407,13 @@ def capacity_voronoi(density: np.ndarray, n: int, domain: tuple[float, float], r
     """:func:`capacity_lloyd_stipple` (equal-ink power cells) with 30 iterations on the density supersampled to
     >= 8 pixels per point. FROZEN: test set only (:data:`FROZEN_METHODS`)."""
     dens = np.asarray(density, np.float64)
-    supersample = max(1, math.ceil(math.sqrt(8 * n / dens.size)))
+    supersample = _supersample(dens, n)
     if supersample > 1:
         dens = np.kron(dens, np.ones((supersample, supersample)))
     return capacity_lloyd_stipple(dens, n, domain, iterations=30, seed=int(rng.integers(2**31)))[0]
 
 
-def _lloyd(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
-    """:func:`lloyd_stipple` with 40 iterations on the density supersampled to at least 8 pixels per point."""
-    supersample = max(1, math.ceil(math.sqrt(8 * n / np.size(density))))
-    return lloyd_stipple(density, n, domain, iterations=40, seed=int(rng.integers(2**31)), supersample=supersample)
+_lloyd = _lloyd_iterations(40)
 
 
 METHODS: dict[str, Method] = {

@@ -27,7 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from data_gen.provenance import file_sha256 as sha256_file
 from data_gen.stipplers import FROZEN_METHODS
+from synthesis.conventions import full_ink_points
 from synthesis.labmap import LabMap
 from synthesis.points import PointSet, write_points
 
@@ -38,10 +40,6 @@ SYNTHESIS_PRESET = "blue"
 TEST_METHODS = (*sorted(FROZEN_METHODS), *(f"synthesis_seed{seed}" for seed in SYNTHESIS_SEEDS))
 STIPPLE_SEED = 0  # the frozen stipplers' random stream (capacity_voronoi's start)
 FORMAT = 1
-
-
-def sha256_file(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def frozen_pictures() -> dict[str, np.ndarray]:
@@ -81,11 +79,6 @@ def stipple(method: str, density: np.ndarray, domain: tuple[float, float], n: in
     raise ValueError(f"unknown test-set method {method!r}; the test set uses {', '.join(TEST_METHODS)}")
 
 
-def full_ink_points(n: int, density: np.ndarray, domain: tuple[float, float]) -> float:
-    """The true scale of n points drawn from ``density``: points per unit area of full ink."""
-    return n / (domain[0] * domain[1] * float(np.mean(density)))
-
-
 def build_test_set(out_dir: str | Path, pictures: Mapping[str, np.ndarray] | None = None, n: int = TEST_POINTS,
                    methods: Sequence[str] = TEST_METHODS, synthesis_iterations: int | None = None) -> dict:
     """Write the test set's truth maps, point files and manifest into ``out_dir``; returns the manifest.
@@ -106,7 +99,7 @@ def build_test_set(out_dir: str | Path, pictures: Mapping[str, np.ndarray] | Non
                    "truth": truth_path.name, "truth_sha256": sha256_file(truth_path), "stipplings": []}
         for method in methods:
             xy = stipple(method, density, domain, n, synthesis_iterations)
-            scale = full_ink_points(len(xy), density, domain)
+            scale = len(xy) / full_ink_points(float(np.mean(density)), domain)  # points per unit area of full ink
             path = out / f"{name}.{method}.txt"
             write_points(PointSet(np.asarray(xy, np.float64), domain, points_per_ink=scale), path)
             picture["stipplings"].append({"method": method, "file": path.name, "n": len(xy),

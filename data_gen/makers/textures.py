@@ -35,16 +35,12 @@ from PIL import Image, ImageDraw, ImageFont
 
 from data_gen.chroma import gaussian_field_chroma, uniform_chroma
 from data_gen.makers.base import MapMaker
+from data_gen.makers.procedural import _normalise
 from synthesis.labmap import LabMap
 
 SUPERSAMPLE = 2  # strokes and letters are drawn at twice the size and box-filtered (anti-aliased)
 CHARACTERS = string.ascii_letters + string.digits + ".,;:!?&@#%()-"
 MIN_MEAN = 0.05  # a picture lighter than this on average gets a background tone (the maker skips maps < 0.02)
-
-
-def _normalise(image: np.ndarray) -> np.ndarray:
-    low, high = np.percentile(image, [1, 99])
-    return np.clip((image - low) / max(high - low, 1e-9), 0.0, 1.0)
 
 
 def _frequencies(size: int) -> np.ndarray:
