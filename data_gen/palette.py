@@ -5,14 +5,15 @@ minus those whose fit stacked points; plus the parametric families of
 :mod:`data_gen.families`, from the perfect lattice to large clusters; PCFs and
 perceptual features; cached, resumable, parallel) -> L1 dissimilarities of the
 features (log-compressed, ``embedding.compression``) -> metric MDS ->
-PCA-reduced features for decoding -> presets (each takes over its perceptually
+PCA-reduced features -> presets (each takes over its perceptually
 nearest exemplar) -> orientation (white noise at a = b = 0, blue noise on a
 blue hue, clusters on red, green noise on green, the pinned regular exemplars
 on blue hues; one scale, and the least hue warp of ``embedding.warps`` that
 leaves no 60-degree hue wedge with more than ``max_wedge_share`` of the
 exemplars) -> PCF table (:func:`data_gen.palette_table.with_preset_exemplars`:
 PCFs re-measured, presets realised exactly, 256 x 256 IDW look-up table) ->
-quality metrics. Writes the asset (``output``) and a provenance record beside
+quality metrics (decoding reads the exemplars' PCFs, :func:`synthesis.palette.pcf_code`;
+:func:`data_gen.palette_table.decoding_record`). Writes the asset (``output``) and a provenance record beside
 it (same name, ``.json``). Settings: ``conf/palette.yaml``; tiny variant
 ``--config-name palette_small``.
 """
@@ -32,7 +33,7 @@ from data_gen.executor import Executor
 from data_gen.families import build_families
 from data_gen.provenance import git_commit, machine, run_config_command, utc_now, versions
 from data_gen.embedding import compressed, l1_distances, mds_layout, orient, stress1, trustworthiness
-from data_gen.palette_table import with_preset_exemplars
+from data_gen.palette_table import decoding_record, with_preset_exemplars
 from synthesis.atomic import atomic_write_text
 from synthesis.features import block_slices, scale_blocks
 from synthesis.palette import Palette, ab_to_latent, hue_chroma, latent_to_ab
@@ -236,6 +237,7 @@ def build(cfg: DictConfig) -> dict:
         "orientations_tried": [record for _, record in orientations],
         "presets": presets,
         "metrics": metrics,
+        "decoding": decoding_record(palette),
         "timings_s": timings,
         "versions": versions(),
         "commit": git_commit(),

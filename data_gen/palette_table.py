@@ -11,7 +11,9 @@ colour grid node nearest to the preset's colour in the input palette, so that pa
 preset's 8-bit colour asks for exactly that generator's PCF), and recomputes
 the 256 x 256 IDW look-up table (and a 64 x 64 one of the dispersion). The full build (:mod:`data_gen.palette`) uses
 the same functions. A provenance record goes into the asset's ``.json``
-(section ``table``).
+(section ``table``), with one of the decoding (section ``decoding``, :func:`decoding_record`: decoding reads the
+exemplars' PCFs, so it has no table of its own). ``--decoding-only`` writes only that section and leaves the asset
+(and its sha256, which trained models record) untouched.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from synthesis.palette import DEFAULT_PALETTE, DISPERSION_LUT_SIZE, LUT_SIZE, Palette, ab_to_latent, hue_chroma, latent_to_ab
+from synthesis.palette import (DECODE_BIN_WIDTH, DECODE_NEIGHBOURS, DECODE_POWER, DEFAULT_PALETTE, DISPERSION_LUT_SIZE, LUT_SIZE,
+                               Palette, ab_to_latent, hue_chroma, latent_to_ab)
 from synthesis.pcf import count_dispersion, pcf_radii, stationary_pcf
 
 PRESET_POINTS = 4096  # generator realisations measured per preset ...
@@ -104,38 +107,56 @@ def with_preset_exemplars(palette: Palette, exemplar_points_count: int, log=prin
     return new, record
 
 
+def decoding_record(palette: Palette) -> dict:
+    """How the palette decodes a pattern and how well it agrees with its layout: every exemplar decoded from the
+    others (leave one out), distance to its own colour in ab units."""
+    start = time.perf_counter()
+    ab = latent_to_ab(palette.exemplar_z)
+    decoded = [palette.locate_code(code, exclude=i) for i, code in enumerate(palette.pcf_codes)]
+    errors = np.hypot([d.a for d in decoded] - ab[:, 0], [d.b for d in decoded] - ab[:, 1])
+    return {"features": f"exemplar_pcf coarse-grained to {DECODE_BIN_WIDTH} r_max bins (synthesis.palette.pcf_code)",
+            "neighbours": DECODE_NEIGHBOURS, "power": DECODE_POWER,
+            "leave_one_out_ab_median": round(float(np.median(errors)), 2), "leave_one_out_ab_p90": round(float(np.percentile(errors, 90)), 2),
+            "seconds": round(time.perf_counter() - start, 2)}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Rebuild the PCF table of a palette asset (default: the shipped one, in place)."""
     parser = argparse.ArgumentParser(prog="python -m data_gen.palette_table", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--palette", default=str(DEFAULT_PALETTE), help="palette asset to read (default: the shipped one)")
     parser.add_argument("--output", help="asset to write (default: the input, replaced atomically)")
+    parser.add_argument("--decoding-only", action="store_true",
+                        help="only record the decoding section in the input's provenance; the asset is not rewritten")
     args = parser.parse_args(argv)
     from data_gen.provenance import git_commit, utc_now
     from synthesis.atomic import atomic_write_text
     from synthesis.errors import PatternshopError
 
     try:
-        palette = Palette.load(args.palette, layout_only=True)
+        palette = Palette.load(args.palette, layout_only=not args.decoding_only)
     except PatternshopError as exc:
         print(f"palette_table: error: {exc}", file=sys.stderr)
         return 2
-    start = time.perf_counter()
-    new, record = with_preset_exemplars(palette, palette.exemplar_points.shape[1], lambda s: print(s, file=sys.stderr))
-    output = Path(args.output or args.palette)
-    new.save(output)
+    command = "python -m data_gen.palette_table " + " ".join(argv if argv is not None else sys.argv[1:])
+    output, sections = Path(args.palette), {}
+    if not args.decoding_only:
+        start = time.perf_counter()
+        palette, record = with_preset_exemplars(palette, palette.exemplar_points.shape[1], lambda s: print(s, file=sys.stderr))
+        output = Path(args.output or args.palette)
+        palette.save(output)
+        sections = {"presets": palette.presets, "table": {
+            "command": command,
+            "radii": [round(float(r), 3) for r in palette.radii], "estimator": "tent bins (synthesis.pcf), periodic",
+            "preset_points": PRESET_POINTS, "preset_realisations": PRESET_REALISATIONS, "preset_seed": PRESET_SEED,
+            "presets": record, "seconds": round(time.perf_counter() - start, 1), "commit": git_commit(), "built": utc_now(),
+        }, "asset_bytes": output.stat().st_size}
+    sections["decoding"] = {**decoding_record(palette), "command": command, "commit": git_commit(), "built": utc_now()}
     provenance_path = output.with_suffix(".json")
     provenance = json.loads(provenance_path.read_text()) if provenance_path.is_file() else {}
-    provenance["presets"] = new.presets
-    provenance["table"] = {
-        "command": "python -m data_gen.palette_table " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "radii": [round(float(r), 3) for r in new.radii], "estimator": "tent bins (synthesis.pcf), periodic",
-        "preset_points": PRESET_POINTS, "preset_realisations": PRESET_REALISATIONS, "preset_seed": PRESET_SEED,
-        "presets": record, "seconds": round(time.perf_counter() - start, 1), "commit": git_commit(), "built": utc_now(),
-    }
-    provenance["asset_bytes"] = output.stat().st_size
-    atomic_write_text(provenance_path, json.dumps(provenance, indent=2) + "\n")
-    print(f"[table] wrote {output} ({output.stat().st_size / 1e6:.1f} MB) and {provenance_path}", file=sys.stderr)
+    atomic_write_text(provenance_path, json.dumps(provenance | sections, indent=2) + "\n")
+    print(f"[table] wrote {provenance_path}" + ("" if args.decoding_only else f" and {output} ({output.stat().st_size / 1e6:.1f} MB)"),
+          file=sys.stderr)
     return 0
 
 

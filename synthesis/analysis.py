@@ -11,7 +11,7 @@ import numpy as np
 from synthesis.cells import CellGrid
 from synthesis.errors import PatternshopError
 from synthesis.palette import OUTSIDE_CORPUS, Palette, hue_chroma
-from synthesis.pcf import pcf_radii, r_max, stationary_pcf
+from synthesis.pcf import r_max, stationary_pcf
 from synthesis.points import PointSet
 
 MAX_SPECTRUM_BINS = 1024
@@ -19,7 +19,7 @@ SPECTRUM_REACH = 2.5  # the spectrum's bins reach this many times the mean point
 MAX_SPECTRUM_POINTS = round((MAX_SPECTRUM_BINS / SPECTRUM_REACH) ** 2)  # 167,772: the bins reach that far for so many points
 CHECK_CHUNK = 1 << 18  # points per block of the degeneracy check: progress and Ctrl+C between blocks
 # rough shares of an analysis's time, for its progress bar
-_STAGE_SHARES = {"coincident points": 10.0, "pair correlation": 75.0, "spectrum": 5.0, "palette colour": 10.0}
+_STAGE_SHARES = {"coincident points": 10.0, "pair correlation": 84.0, "spectrum": 5.0, "palette colour": 1.0}
 
 Progress = Callable[[float], None]  # called with the fraction of a stage done
 
@@ -130,12 +130,12 @@ def analyze_points(points: PointSet, palette: Palette, progress: bool = False) -
             return advance
 
         check_not_degenerate(points, stage("coincident points"))
-        radii = pcf_radii()
+        radii = palette.radii  # the PCF the palette decodes (pcf_radii())
         pcf = stationary_pcf(points.xy, points.domain, periodic=False, radii=radii, progress=stage("pair correlation"))
         stage("spectrum")
         frequency, power = radial_spectrum(points)
         stage("palette colour")
-        decoded = palette.locate(points.xy, points.domain)
+        decoded = palette.locate_pcf(pcf)  # the PCF just measured: the colour does not depend on orientation
         bar.update(bar.total - bar.n)
     a, b = decoded.a, decoded.b
     hue, chroma = hue_chroma(a, b)
