@@ -13,8 +13,9 @@ The only use of the synthesiser's internals is :func:`objective_score`, which
 scores patterns under the synthesiser's *own* objective (objective validity).
 
 Cases (``--only``): ``constant`` (constant maps of each preset, n = 4096),
-``edges`` (blue|red and blue|white stripe maps), ``logo`` (examples/logo.tif, default
-n), ``photos`` (scikit-image's camera, astronaut, moon and coins as ``from-image`` makes them, blue preset,
+``edges`` (blue|red and blue|white stripe maps), ``strips`` (every preset: border strips of a constant map and both
+sides of the edges of a stripe map with blue, or white for blue; NN CV against the generator's), ``logo``
+(examples/logo.tif, default n), ``photos`` (scikit-image's camera, astronaut, moon and coins as ``from-image`` makes them, blue preset,
 20,000 points; anchors: weighted Lloyd, 60 iterations, and its capacity-constrained variant CCVT, 50 iterations,
 both from a stratified start; ``--photos``, ``--photo-n``, ``--photo-seeds`` to develop on fewer).
 Every figure is the median over the seeds (3; 1 with --quick).
@@ -49,7 +50,10 @@ REPO = Path(__file__).resolve().parent.parent
 PRESETS = ["white", "blue", "green", "red", "step"]
 N_CONSTANT = 4096
 N_PHOTO = 20000
-CASES = ["constant", "edges", "logo", "photos"]
+STRIP_PRESETS = ["white", "blue", "green", "red", "step", "lattice", "lloyd", "matern"]  # every preset of the palette
+STRIP_TARGETS = ["white", "blue", "step", "green", "red"]  # strips within 0.8-1.25 (issue 27); the others are reported
+STRIP_DEPTH = 3.0  # strips within this many r_max of the border or an edge
+CASES = ["constant", "edges", "strips", "logo", "photos"]
 
 
 # --------------------------------------------------------------------------- the synthesiser, as a user calls it
@@ -260,6 +264,57 @@ def case_edges(seeds: list[int], pairs: list[str], keep: dict) -> dict:
     return out
 
 
+def strip_partner(name: str) -> str:
+    """The preset across the correlation edges of ``name``'s stripe map: blue (blue's own: white)."""
+    return "white" if name == "blue" else "blue"
+
+
+def case_strips(seeds: list[int], names: list[str]) -> dict:
+    """Border and correlation-edge strips (0.5 r_max wide, within :data:`STRIP_DEPTH` r_max) of each preset, as ratios to
+    the expected density, profiles pooled over the seeds: the border of a constant map (n = :data:`N_CONSTANT`) and both
+    sides of the edges of a map of stripes preset | :func:`strip_partner` (as ``case_edges``). Noise yardstick: the preset's
+    generator (torus) seen through the same strips. Also the constant map's NN CV / the generator's."""
+    presets = load_palette().preset_ab()
+    n, stripe_px = N_CONSTANT, 16
+    out: dict = {}
+    for name in names:
+        partner = strip_partner(name)
+        lab = constant_lab(presets[name])
+        stripes = stripe_lab(presets[name], presets[partner], stripe_px)
+        border, gen_border, edge, gen_edge, cv_ratio = [], [], [], [], []
+        for seed in seeds:
+            xy, _ = run_synthesis(lab, n, seed)
+            gen = generate(name, n, 1000 + seed)
+            border.append(fs.border_profile(xy, (1.0, 1.0), n, depth=STRIP_DEPTH)[1])
+            gen_border.append(fs.border_profile(gen, (1.0, 1.0), n, depth=STRIP_DEPTH)[1])
+            intensity = fs.Intensity.constant(n)
+            gen_cv = fs.nn_stats(gen, intensity, periodic=True)["nn_cv"]
+            if gen_cv > 1e-3:  # a lattice's NN distances do not vary
+                cv_ratio.append(fs.nn_stats(xy, intensity)["nn_cv"] / gen_cv)
+            xy, _ = run_synthesis(stripes, n, seed)
+            centres, ratio = edge_profile(xy, stripes, stripe_px, n, STRIP_DEPTH)
+            edge.append(ratio)
+            half = gen[gen[:, 1] < 0.5]  # the generator's torus pattern through a window of the stripe map's shape
+            gen_edge.append(edge_profile(half, stripes, stripe_px, len(half), STRIP_DEPTH)[1])
+        border, gen_border = np.mean(border, axis=0), np.mean(gen_border, axis=0)
+        edge, gen_edge = np.mean(edge, axis=0), np.mean(gen_edge, axis=0)
+        own = centres < 0
+        row = {"partner": partner, "border_min": float(border.min()), "border_max": float(border.max()),
+               "gen_border_min": float(gen_border.min()), "gen_border_max": float(gen_border.max()),
+               "edge_min": float(edge[own].min()), "edge_max": float(edge[own].max()),
+               "partner_edge_min": float(edge[~own].min()), "partner_edge_max": float(edge[~own].max()),
+               "gen_edge_min": float(gen_edge.min()), "gen_edge_max": float(gen_edge.max()),
+               "nn_cv_ratio": median(cv_ratio), "border_profile": [r4(v) for v in border], "edge_profile": [r4(v) for v in edge]}
+        print(f"strips {name}: border {np.round(border, 2).tolist()} (generator {gen_border.min():.2f}..{gen_border.max():.2f}); "
+              f"{name}|{partner} edge {np.round(edge, 2).tolist()} (generator {gen_edge.min():.2f}..{gen_edge.max():.2f}); "
+              f"NN CV ratio {row['nn_cv_ratio']}", flush=True)
+        out[name] = row
+    out["setup"] = (f"border: constant map, n = {n}, rings 0.5 r_max wide at 0-{STRIP_DEPTH:g} r_max from the border; edges: 64x128 "
+                    f"map of {stripe_px} px stripes preset | partner, L = 50, n = {n}, strips 0.5 r_max wide within {STRIP_DEPTH:g} "
+                    f"r_max of the 7 edges, negative = the preset's side; profiles are means over {len(seeds)} seeds")
+    return out
+
+
 def case_logo(seeds: list[int]) -> dict:
     from synthesis.mapio import read_map
 
@@ -419,6 +474,22 @@ def target_rows(results: dict) -> list[dict]:
             add(f"{key} edge strips (within 3 r_max) min..max / expected", f"{m['edge_min']:.3f}..{m['edge_max']:.3f}",
                 "within 0.75-1.3", within(m["edge_min"], 0.75, 1.3) and within(m["edge_max"], 0.75, 1.3),
                 f"Poisson {m['poisson_edge_min']:.2f}..{m['poisson_edge_max']:.2f}")
+    strips = results.get("strips")
+    if strips:
+        for name, m in strips.items():
+            if not isinstance(m, dict):
+                continue
+            for label, lo, hi, reference in (
+                    ("border", m["border_min"], m["border_max"], f"generator {m['gen_border_min']:.2f}..{m['gen_border_max']:.2f}"),
+                    (f"{name}|{m['partner']} edge, {name} side", m["edge_min"], m["edge_max"],
+                     f"generator {m['gen_edge_min']:.2f}..{m['gen_edge_max']:.2f}"),
+                    (f"{name}|{m['partner']} edge, {m['partner']} side", m["partner_edge_min"], m["partner_edge_max"], None)):
+                ok = within(lo, 0.8, 1.25) and within(hi, 0.8, 1.25)
+                add(f"{name}: {label} strips (0-3 r_max) min..max / expected", f"{lo:.3f}..{hi:.3f}", "within 0.8-1.25",
+                    ok if name in STRIP_TARGETS or label.endswith(f"{m['partner']} side") else None, reference)
+            if name in ("green", "red", "matern"):
+                add(f"{name}: NN CV / generator's (strips case)", m["nn_cv_ratio"], "0.85-1.15",
+                    within(m["nn_cv_ratio"], 0.85, 1.15) if name != "matern" else None)
     logo = results.get("logo")
     if logo:
         m = logo["median"]
@@ -579,6 +650,7 @@ def main() -> None:
     parser.add_argument("--photos", action="append", choices=PHOTOS, help="photos case: only this picture (repeatable)")
     parser.add_argument("--photo-n", type=int, default=N_PHOTO, help=f"photos case: points (default {N_PHOTO})")
     parser.add_argument("--photo-seeds", type=int, default=None, help="photos case: number of seeds (default: --seeds)")
+    parser.add_argument("--strip-presets", action="append", choices=STRIP_PRESETS, help="strips case: only this preset (repeatable)")
     parser.add_argument("--label", default=None, help="a name for the code measured (recorded in the results)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_args()
@@ -599,6 +671,8 @@ def main() -> None:
             results[case] = case_constant(seeds, keep)
         elif case == "edges":
             results[case] = case_edges(seeds, ["red"] if args.quick else ["red", "white"], keep)
+        elif case == "strips":
+            results[case] = case_strips(seeds, args.strip_presets or STRIP_PRESETS)
         elif case == "logo":
             results[case] = case_logo(seeds)
         elif case == "photos":

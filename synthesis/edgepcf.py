@@ -39,7 +39,10 @@ too-close pairs fall in the small-radius bins where the target expects none,
 and cost. The gradient is written out by hand (chain rule through the pair
 distances; window weights, deviations, fields and H are held fixed between
 neighbour refreshes, the expected counts near borders and edges linearised),
-so memory stays O(pairs).
+so memory stays O(pairs). That linear change of the expected counts with a
+point's position follows the pattern's own pair level, not the target's
+(:func:`slope_levels`): otherwise a pattern short of its pairs gains by moving
+towards borders and edges, where fewer are expected.
 
 Two implementations: :func:`objective_reference` (plain numpy, the reference
 the tests compare against) and the fused numba kernels of
@@ -53,7 +56,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.cells import CellGrid
-from synthesis.edgepcf_fast import point_lists, point_terms, row_guides, sloped_window_sums, window_bounds, window_weights
+from synthesis.edgepcf_fast import (point_lists, point_terms, row_guides, sloped_window_sums, window_bounds, window_sums,
+                                    window_weights)
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, Denominators, MapFields, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
@@ -66,6 +70,7 @@ REGULAR_RANGE = 0.55  # radii (units of r_max) over which the target's short-ran
 POISSON_TOLERANCE = 0.1  # a target PCF within this of 1 at every radius is white noise (exemplar noise is ~0.07)
 STRUCTURE_RANGE = 0.4  # ... and from this much further on, a structured one
 VARIANCE_FLOOR = 0.05  # pairs^2: one stray pair where the target expects none is 4.5 standard deviations
+LEVEL_PRIOR = 0.5  # pairs per point added to both sums of a window's pair level (:func:`slope_levels`): 1 where none expected
 
 
 @dataclass(frozen=True)
@@ -78,6 +83,8 @@ class WindowScale:
         dead_zone: standardised deviations within this many standard deviations cost nothing.
         weight: the family's weight in the objective.
         compensation: factor of the variance compensation (see :func:`_variance_force`; measured).
+        level: its windows measure the pattern's pair level that the expected counts' slopes follow (see
+            :func:`slope_levels`).
     """
 
     radius: float
@@ -85,6 +92,7 @@ class WindowScale:
     dead_zone: float
     weight: float
     compensation: float = 0.0
+    level: bool = False
 
 
 # Local windows (~40 points) catch outliers (holes, stacks, broken hard cores) and leave a true
@@ -92,7 +100,8 @@ class WindowScale:
 # with few enough constraints (n / 200 windows) that they cannot fit a sample's noise.
 # Both score cumulative counts (pairs closer than each radius: every step out of a hard core pays).
 WINDOW_SCALES = (WindowScale(radius=3.3, points_per_window=8.0, dead_zone=2.0, weight=1.0),
-                 WindowScale(radius=16.0, points_per_window=200.0, dead_zone=0.0, weight=1.0, compensation=2.0))
+                 WindowScale(radius=16.0, points_per_window=200.0, dead_zone=0.0, weight=1.0, compensation=2.0,
+                             level=True))
 
 
 @dataclass
@@ -154,6 +163,8 @@ class Neighbourhoods:
         radii: (m,) radii in units of r_max.
         regularity: (n,) in [0, 1], how far the target PCF at each point stays below 1 at short range.
         structure: (n,) in [0, 1], how far the target PCF at each point is from Poisson's (0: white noise).
+        window_expected: (W, m) float64 every window's sum of its points' expected counts ``sum_c a_wc g D_c`` at the
+            anchors, per radius (all families, numbered as the point lists; :func:`synthesis.edgepcf_fast.window_sums`).
     """
 
     offsets: np.ndarray
@@ -174,6 +185,7 @@ class Neighbourhoods:
     radii: np.ndarray
     regularity: np.ndarray
     structure: np.ndarray
+    window_expected: np.ndarray | None = None
 
     def expected(self) -> np.ndarray:
         """(n, m) float64 target tent counts ``g D`` around each point at its anchor (plain numpy)."""
@@ -273,9 +285,40 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
     variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * np.cumsum(expected_slope, axis=1),
                                      fields.radii)
-    return Neighbourhoods(offsets, neighbours, guide, spacing, xy.copy(), fields.target, fields.side_px, denominator, sloped,
+    hood = Neighbourhoods(offsets, neighbours, guide, spacing, xy.copy(), fields.target, fields.side_px, denominator, sloped,
                           expected_slope, variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular,
                           structured)
+    observed, hood.window_expected = window_sums(hood, xy, workspace)
+    if len(sloped):
+        cumulative = np.cumsum(expected_slope, axis=1) * slope_levels(hood, observed, hood.window_expected)[..., None]
+        hood.expected_slope = np.diff(cumulative, axis=1, prepend=0.0)
+    return hood
+
+
+def slope_levels(hood: Neighbourhoods, observed: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """(K, m) the pattern's pair level around each sloped point: its level windows' (:attr:`WindowScale.level`)
+    cumulative tent counts over their expected counts (``observed``, ``expected``: (W, m) per-radius window sums of
+    all families, :func:`synthesis.edgepcf_fast.window_sums`; :data:`LEVEL_PRIOR` pairs per point added to both),
+    averaged over the point's windows with weights ``a_wc^2``; 1 outside every level window.
+
+    The expected counts' slope near borders and edges (``g grad D``) is scaled by this level, so it is ``g_hat grad D``
+    for a pattern whose PCF is ``g_hat``: what the pair counts of such a pattern lose or gain along the same move. With
+    the target's own ``g`` instead, any pattern short of the target's pairs (a clustered target early in the run, or
+    held back by its leash) lowered its deficit by moving towards lower expected counts: points and whole clusters
+    (their pairs move with them) gathered on the border and along correlation edges (red: 1.7-1.9 x the expected density
+    in the border's first 0.5 r_max). A true sample (level 1) keeps the target's slope.
+    """
+    bounds = window_bounds(hood.windows)
+    levels, total = np.zeros((len(hood.sloped), len(hood.radii))), np.zeros((len(hood.sloped), 1))
+    for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:]):
+        if not family.scale.level:
+            continue
+        prior = LEVEL_PRIOR * np.bincount(family.owners, family.weights, minlength=hi - lo)[:, None]
+        level = (np.cumsum(observed[lo:hi], axis=1) + prior) / (np.cumsum(expected[lo:hi], axis=1) + prior)
+        levels += sloped_window_sums(hood.sloped, hood.member_offsets, hood.member_window, hood.member_weight, lo, level)
+        total += sloped_window_sums(hood.sloped, hood.member_offsets, hood.member_window, hood.member_weight, lo,
+                                    np.ones((hi - lo, 1)))
+    return np.where(total > 0, levels / np.maximum(total, 1e-300), 1.0)
 
 
 def _variance_force(windows: list[Windows], members: tuple[np.ndarray, np.ndarray, np.ndarray], sloped: np.ndarray,

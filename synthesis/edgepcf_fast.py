@@ -374,6 +374,36 @@ def sloped_window_sums(sloped: np.ndarray, point_offsets: np.ndarray, point_wind
     return out
 
 
+def window_sums(hood: Neighbourhoods, xy: np.ndarray, workspace: Workspace | None = None,
+                threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Every window's sums (W, m) float64, per radius (not cumulated), over all families (numbered as in
+    :func:`point_lists`): of its points' tent counts ``sum_c a_wc S_c`` at xy (n, 2) (the anchors, where nothing has
+    moved along its slope), and of their expected counts ``sum_c a_wc g D_c`` at the anchors.
+
+    ``hood`` needs its pair lists, guides, spacings, anchors, target, denominators and point lists (its slopes are not
+    read). The same passes as :class:`FastObjective`'s (its buffers in ``workspace``).
+    """
+    workspace = scratch(workspace)
+    threads = _threads(threads)
+    n, m = len(xy), len(hood.radii)
+    windows = int(window_bounds(hood.windows)[-1])
+    parts = workspace.empty("objective.sums", (threads, windows, m), np.float32)
+    pairs = len(hood.neighbours)
+    pair_bin = workspace.empty("objective.pair_bin", pairs, np.int16 if m < 2 ** 15 else np.int32)
+    no_slope = np.zeros((1, m))
+    _window_sums_of_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing,
+                           1.0 / float(hood.radii[1] - hood.radii[0]), xy, np.full(n, -1, np.int32), no_slope, no_slope,
+                           hood.member_offsets, hood.member_window, hood.member_weight,
+                           max(1, int(np.diff(hood.offsets).max(initial=0))), parts, pair_bin,
+                           workspace.empty("objective.pair_pull", pairs, np.float32))
+    observed = parts.sum(axis=0, dtype=np.float64)
+    expected = workspace.empty("objective.fixed", (threads, windows, m))
+    denominators = hood.denominators
+    _expected_window_sums(hood.target, hood.side_px, hood.anchor, denominators.exact, denominators.slot,
+                          denominators.values, hood.member_offsets, hood.member_window, hood.member_weight, expected)
+    return observed, -expected.sum(axis=0)
+
+
 class FastObjective:
     """Objective and gradient for one neighbourhood, with buffers reused across iterations.
 
@@ -401,12 +431,9 @@ class FastObjective:
         # the slopes cumulated over the radii (the gradient pairs them with dL/dS per radius, see _gradient)
         self.cumulative_x = np.cumsum(self.slope_x, axis=1, dtype=np.float64).astype(self.slope_x.dtype)
         self.cumulative_y = np.cumsum(self.slope_y, axis=1, dtype=np.float64).astype(self.slope_y.dtype)
-        # the expected counts at the anchors do not move between refreshes: their window sums are taken once
-        denominators = hood.denominators
-        fixed = workspace.empty("objective.fixed", (threads, windows, m))
-        _expected_window_sums(hood.target, hood.side_px, hood.anchor, denominators.exact, self.slot, denominators.values,
-                              hood.member_offsets, hood.member_window, hood.member_weight, fixed)
-        self.fixed = fixed[0] if threads == 1 else fixed.sum(axis=0)
+        # the expected counts at the anchors do not move between refreshes: their window sums were taken once, by the
+        # refresh (:func:`window_sums`)
+        self.fixed = -hood.window_expected
         self.sums = workspace.empty("objective.sums", (threads, windows, m), np.float32)
         # each pair's bin (-1: out of reach or coincident) and tent slope / distance, written by every evaluation for
         # its gradient (6 bytes a pair: storing the offsets too, 10 bytes, was no faster)

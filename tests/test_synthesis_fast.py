@@ -251,7 +251,8 @@ def test_variance_force_matches_a_plain_sum():
     hood = find_neighbourhoods(fields, xy)
     assert len(hood.sloped) > 50
     dispersion = sample_grid(fields.dispersion, xy[hood.sloped], fields.side_px).astype(np.float64)
-    variance_slope = dispersion[..., None] * np.cumsum(hood.expected_slope, axis=1)
+    target_slope = sample_grid(fields.target, xy[hood.sloped], fields.side_px)[..., None] * hood.denominators.slopes
+    variance_slope = dispersion[..., None] * np.cumsum(target_slope, axis=1)  # the target's variance (not the level's)
     model = CUMULATIVE_VARIANCE[0] + CUMULATIVE_VARIANCE[1] * (fields.radii + fields.radii[1])
     slot = np.full(len(xy), -1)
     slot[hood.sloped] = np.arange(len(hood.sloped))
@@ -266,6 +267,37 @@ def test_variance_force_matches_a_plain_sum():
         scale = family.scale.compensation * family.scale.weight / family.deviation.size
         plain -= scale * np.einsum("kj,kjd->kd", per_point, variance_slope)
     np.testing.assert_allclose(hood.variance_force, plain, rtol=1e-6, atol=1e-9 * np.abs(plain).max())  # float32 weights
+
+
+def test_window_sums_and_slope_levels_equal_plain_numpy():
+    from synthesis.edgepcf import LEVEL_PRIOR, pair_counts_reference, slope_levels
+    from synthesis.edgepcf_fast import window_sums
+
+    fields = MapFields.build(split_map(), 1200, load_palette())
+    xy = np.random.default_rng(5).random((1200, 2)) * fields.domain
+    hood = find_neighbourhoods(fields, xy)
+    observed, expected = window_sums(hood, xy)
+    plain_observed = np.concatenate([family.aggregate(pair_counts_reference(xy, hood)) for family in hood.windows])
+    plain_expected = np.concatenate([family.aggregate(hood.expected()) for family in hood.windows])
+    np.testing.assert_allclose(observed, plain_observed, rtol=1e-5, atol=1e-4)  # float32 sums
+    np.testing.assert_allclose(expected, plain_expected, rtol=1e-6, atol=1e-6)  # float32 target and weights
+    np.testing.assert_array_equal(expected, hood.window_expected)
+    levels = slope_levels(hood, plain_observed, plain_expected)
+    plain = np.ones((len(hood.sloped), len(fields.radii)))
+    first = len(hood.windows[0].offsets) - 1  # the level windows (the regional family) come second
+    regional = hood.windows[1]
+    assert regional.scale.level and not hood.windows[0].scale.level
+    prior = LEVEL_PRIOR * np.bincount(regional.owners, regional.weights, minlength=len(regional.offsets) - 1)[:, None]
+    level = (np.cumsum(plain_observed[first:], axis=1) + prior) / (np.cumsum(plain_expected[first:], axis=1) + prior)
+    for k, c in enumerate(hood.sloped):
+        mine = regional.members == c
+        if mine.any():
+            a2 = regional.weights[mine].astype(np.float64) ** 2
+            plain[k] = a2 @ level[regional.owners[mine]] / a2.sum()
+    np.testing.assert_allclose(levels, plain, rtol=1e-6)
+    red = xy[hood.sloped, 0] > 0.5 * fields.domain[0]
+    assert levels[red, 6:12].mean() < 0.6  # independent points hold too few of the red half's pairs ...
+    assert levels[~red, 12:20].mean() > 1.2  # ... and too many of the blue half's: the slopes follow the pattern
 
 
 def test_tone_term_fast_path_equals_the_reference():
