@@ -1,12 +1,14 @@
 """Measure the correlation label of every stippler of data_gen/stipplers.py: decode stationary samples with the palette.
 
-``python bench/stippler_labels.py [--n 2048] [--seeds 3] [--out bench/stippler_labels.json]``
+``python bench/stippler_labels.py [--n 2048] [--seeds 3] [--methods NAME ...] [--out bench/stippler_labels.json]``
 
 Each method stipples a constant density (0.2, 0.4 and 0.6; ``--n`` points on the unit square) at ``--seeds``
 seeds; :meth:`synthesis.palette.Palette.locate` (what ``patternshop analyze`` reports as its colour) decodes
 each sample; the table gives the mean a, b, their spread (RMS distance to the mean, ab units), the nearest
 preset and its distance. The shipped palette decodes; the frozen test-set methods are measured too (their
-labels are never used for training).
+labels are never used for training). ``--methods`` measures only those (the lattices, whose rotation comes
+from the seed: ``--methods lattice_square lattice_hex lattice_square_jitter lattice_hex_jitter --seeds 8 --out
+bench/stippler_labels_lattices.json``).
 """
 
 from __future__ import annotations
@@ -27,11 +29,13 @@ from synthesis.palette import load_palette  # noqa: E402
 DENSITIES = (0.2, 0.4, 0.6)
 
 
-def measure(n: int, seeds: int) -> list[dict]:
+def measure(n: int, seeds: int, methods: list[str] | None = None) -> list[dict]:
     palette = load_palette()
     presets = palette.preset_ab()
     rows = []
     for name, method in {**METHODS, **FROZEN_METHODS}.items():
+        if methods and name not in methods:
+            continue
         start = time.perf_counter()
         ab = []
         for density in DENSITIES:
@@ -56,9 +60,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=2048)
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--methods", nargs="*", help="only these methods (default: all)")
     parser.add_argument("--out", default="bench/stippler_labels.json")
     args = parser.parse_args()
-    rows = measure(args.n, args.seeds)
+    rows = measure(args.n, args.seeds, args.methods)
     Path(args.out).write_text(json.dumps({"n": args.n, "densities": DENSITIES, "seeds": args.seeds, "rows": rows}, indent=1) + "\n")
 
 

@@ -43,6 +43,12 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
   config key unchanged. The other methods' labels are what the shipped palette decodes
   from their points (:data:`data_gen.stipplers.LABELS`); the frozen test set's stipplers
   (:data:`data_gen.stipplers.FROZEN_METHODS`) are refused.
+* Scale: with ``scale.share`` > 0, that share of the items is made at a points per ink drawn
+  log-uniformly in ``scale.points_per_ink`` [lo, hi] (recorded in the item's meta) and labelled at the
+  pairs' ``synthesis.points_per_ink`` P, the scale the network reads at: above P the map's content
+  is zoomed by ``sqrt(ppi / P)`` (a random window upsampled; ``infer`` draws such a pattern that many times
+  larger), below P its density is multiplied by ``ppi / P`` (how the points of a light area at P look, the
+  same spacing; ``infer`` read light areas at up to 64 times fewer points per ink). Items and key unchanged at 0.
 * Dark content: with ``dense.share`` > 0, that share of the other
   maps is darkened towards full ink, ``1 - density`` multiplied by a factor
   drawn log-uniformly in ``dense.scale``, so that nearly full ink, rare in the
@@ -93,6 +99,7 @@ class PairSettings:
     sparse: dict  # {"share", "scale": [lo, hi], "holes", "empty_share"} (see the module docstring)
     dense: dict  # {"share", "scale": [lo, hi]} (see the module docstring)
     textures: dict  # {"share", "kinds": {name: weight}} (see the module docstring)
+    scale: dict  # {"share", "points_per_ink": [lo, hi]} (see the module docstring)
 
     @classmethod
     def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
@@ -105,7 +112,8 @@ class PairSettings:
                        other_methods=other_methods_setting(OmegaConf.to_container(cfg.get("other_methods") or {}, resolve=True)),
                        sparse=sparse_setting(OmegaConf.to_container(cfg.get("sparse") or {}, resolve=True)),
                        dense=dense_setting(OmegaConf.to_container(cfg.get("dense") or {}, resolve=True)),
-                       textures=textures_setting(OmegaConf.to_container(cfg.get("textures") or {}, resolve=True)))
+                       textures=textures_setting(OmegaConf.to_container(cfg.get("textures") or {}, resolve=True)),
+                       scale=scale_setting(OmegaConf.to_container(cfg.get("scale") or {}, resolve=True)))
         except (TypeError, ValueError) as exc:  # e.g. map_size=big: a user error, one line like the others
             raise PatternshopError(f"bad pair setting: {exc}") from exc
 
@@ -125,6 +133,8 @@ class PairSettings:
                                         "methods": {k: v for k, v in self.other_methods["methods"].items() if v}}
         if not self.textures["share"]:
             del content["textures"]
+        if not self.scale["share"]:
+            del content["scale"]
         if not (self.sparse["share"] or self.sparse["empty_share"]):
             del content["sparse"]
         if not self.dense["share"]:
@@ -199,6 +209,46 @@ def texture_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Gene
     return target_to_map(map_to_target(LabMap.from_density_latent(density, lab_map.latent())))  # 8-bit, as stored
 
 
+def scale_setting(config: dict) -> dict:
+    """``scale`` config -> {"share", "points_per_ink": [lo, hi]} checked (share in [0, 1], 0 < lo <= hi)."""
+    share = float(config.get("share", 0.0))
+    low, high = (float(value) for value in config.get("points_per_ink", (125.0, 512000.0)))
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"scale.share must be in [0, 1], got {share:g}")
+    if not 0.0 < low <= high:
+        raise ValueError(f"scale.points_per_ink needs 0 < lo <= hi, got [{low:g}, {high:g}]")
+    return {"share": share, "points_per_ink": [low, high]}
+
+
+def zoom_window(lab: np.ndarray, zoom: float, rng: np.random.Generator) -> np.ndarray:
+    """(H, W, 3) window of ``lab`` (H, W, 3), ``1 / zoom`` of its size at a random offset, bilinearly upsampled
+    back to (H, W) (``zoom`` >= 1; pixel centres aligned)."""
+    from scipy.ndimage import map_coordinates
+
+    rows, cols = lab.shape[:2]
+    top, left = rng.random(2) * (np.array([rows, cols]) * (1.0 - 1.0 / zoom))
+    grid_r, grid_c = np.meshgrid(top - 0.5 + (np.arange(rows) + 0.5) / zoom, left - 0.5 + (np.arange(cols) + 0.5) / zoom,
+                                 indexing="ij")
+    return np.stack([map_coordinates(lab[..., k], [grid_r, grid_c], order=1, mode="nearest") for k in range(3)], -1)
+
+
+def scale_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> tuple[LabMap, float]:
+    """(map, points per ink the item is drawn at): for a ``scale.share`` of the items a points per ink drawn
+    log-uniformly in ``scale.points_per_ink``, the map zoomed above ``synthesis.points_per_ink`` and lightened
+    below it (see the module docstring); otherwise the map and ``synthesis.points_per_ink``.
+    Draws from ``rng`` only when the share is > 0."""
+    share, base = settings.scale["share"], settings.points_per_ink
+    if not share or rng.random() >= share:
+        return lab_map, base
+    drawn = log_uniform_factor(rng, settings.scale["points_per_ink"])
+    if drawn >= base:
+        lab = zoom_window(np.asarray(lab_map.lab, np.float64), float(np.sqrt(drawn / base)), rng)
+        scaled = LabMap(lab.astype(np.float32))
+    else:
+        scaled = LabMap.from_density_latent(lab_map.density() * (drawn / base), lab_map.latent())
+    return target_to_map(map_to_target(scaled)), drawn  # 8-bit, as stored
+
+
 def dense_setting(config: dict) -> dict:
     """``dense`` config -> {"share", "scale"} checked (share in [0, 1], 0 < lo <= hi <= 1)."""
     share = float(config.get("share", 0.0))
@@ -261,6 +311,7 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
 
     rng = np.random.default_rng([settings.seed, item])
     lab_map = texture_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
+    lab_map, drawn_points_per_ink = scale_variant(settings, lab_map, rng)
     lab_map = density_variant(settings, lab_map, rng)
     target = map_to_target(lab_map)
     try:
@@ -284,6 +335,8 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
         xy = result.points.xy.astype(np.float32)
         meta = {"item": item, "source": maker.source(item), "n": n, "seed": synthesis_seed, "method": "synthesis",
                 "final_loss": round(result.final_loss, 6), "seconds": round(result.seconds, 3)}
+    if settings.scale["share"]:
+        meta["points_per_ink"] = round(drawn_points_per_ink, 1)
     return Pairs(item=np.array([item], np.int64), raster=point_raster(xy, settings.raster_size)[None].astype(np.float16),
                  target=target[None], points=xy, offsets=np.array([0, len(xy)], np.int64), meta=[meta])
 

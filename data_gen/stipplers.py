@@ -31,6 +31,9 @@ method             what it does                                               la
 ``bayer``          ordered dithering, 8 x 8 Bayer matrix at a random offset   measured
 ``lloyd_few``      weighted Lloyd, 4 iterations (not converged)               measured
 ``lloyd_many``     weighted Lloyd, 150 iterations                             measured
+``lattice_square``, a square or hexagonal lattice at a random rotation and    measured
+``lattice_hex``    offset, Gaussian jitter 0.05 spacings (``_jitter``: 0.2),
+(``_jitter``)      warped to the density by its inverse CDF
 =================  =========================================================  =======
 
 Frozen test-set methods (:data:`FROZEN_METHODS`; docs/evaluation.md), never used for training pairs:
@@ -57,11 +60,17 @@ method                     a       b       spread  nearest   dist.
 ``bayer``                  18.0    -50.6   10.0    blue      6.2
 ``lloyd_few``              21.5    -53.6   0.4     blue      3.0
 ``lloyd_many``             18.6    -55.4   0.1     blue      6.4
+``lattice_square``         -12.2   -55.4   18.2    lloyd     8.3
+``lattice_hex``            -5.9    -59.3   9.4     lloyd     1.7
+``lattice_square_jitter``  24.0    -43.4   0.4     blue      8.6
+``lattice_hex_jitter``     24.4    -42.0   0.8     step      9.5
 ``sierra_serpentine``      23.2    -41.8   4.6     step      8.6
 ``capacity_voronoi``       2.2     -60.6   0.2     lloyd     8.2
 =========================  ======  ======  ======  ========  =====
 
-The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with
+The lattices' rows come from ``--methods lattice_square lattice_hex lattice_square_jitter lattice_hex_jitter
+--seeds 8`` (``bench/stippler_labels_lattices.json``; each seed a random rotation, so their spread is the palette's
+orientation dependence: up to 18 ab units for the square lattice). The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with
 their measured a, b. The raster methods are lattices decoded at one orientation: the palette is not
 rotation invariant (docs/palette.md), so their labels are to be re-measured once it is.
 """
@@ -75,6 +84,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 SQRT3 = math.sqrt(3.0)
+SQRT2 = math.sqrt(2.0)
 CLUSTER_POINTS = 16  # Thomas offspring per parent on average (as synthesis.generators.red)
 CLUSTER_STD_SPACINGS = 0.6  # offspring spread, local mean spacings
 DISK_RADIUS_SPACINGS = 0.7  # Poisson-disk radius, local r_max (hexagonal spacing)
@@ -248,6 +258,13 @@ def warped_jitter(density: np.ndarray, n: int, domain: tuple[float, float], rng:
     side = math.isqrt(n - 1) + 1
     cells = rng.choice(side * side, size=n, replace=False)
     uv = (np.stack([cells % side, cells // side], 1) + rng.random((n, 2))) / side
+    return warp_by_density(uv, density, domain)
+
+
+def warp_by_density(uv: np.ndarray, density: np.ndarray, domain: tuple[float, float]) -> np.ndarray:
+    """(k, 2) positions in the domain of points uv (k, 2) in the unit square, mapped by the density's inverse CDF
+    (rows by their ink, then within the row): a uniform pattern becomes density-proportional, and a constant
+    density maps it linearly (a lattice stays a lattice)."""
     dens = np.asarray(density, np.float64) + 1e-12
     H, W = dens.shape
     pixel = pixel_size(dens, domain)
@@ -415,6 +432,35 @@ def capacity_voronoi(density: np.ndarray, n: int, domain: tuple[float, float], r
 
 _lloyd = _lloyd_iterations(40)
 
+LATTICE_JITTER = {"near": 0.05, "jittered": 0.2}  # Gaussian displacement per axis, lattice spacings
+
+
+def rotated_lattice(n: int, hexagonal: bool, jitter: float, rng: np.random.Generator) -> np.ndarray:
+    """(k, 2) points in the unit square, k about n: a square or hexagonal lattice of n points per unit area at a
+    uniform random rotation and offset, each point moved by a Gaussian of ``jitter`` spacings per axis."""
+    spacing = r_max(n, 1.0) if hexagonal else 1.0 / math.sqrt(n)
+    row_step = spacing * (SQRT3 / 2.0 if hexagonal else 1.0)
+    reach = math.ceil(SQRT2 / min(spacing, row_step)) + 2  # lattice indices covering the square at any rotation
+    i, j = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1))
+    x = (i + (0.5 * (j % 2) if hexagonal else 0.0)) * spacing
+    y = j * row_step
+    angle = rng.uniform(0.0, math.pi)
+    cos, sin = math.cos(angle), math.sin(angle)
+    xy = np.stack([cos * x - sin * y, sin * x + cos * y], -1).reshape(-1, 2) + 0.5 + rng.random(2) * spacing
+    xy = xy + rng.normal(size=xy.shape) * (jitter * spacing)
+    return xy[np.all((xy >= 0.0) & (xy < 1.0), axis=1)]
+
+
+def _lattice(hexagonal: bool, jitter: str) -> Method:
+    def stipple(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+        return warp_by_density(rotated_lattice(n, hexagonal, LATTICE_JITTER[jitter], rng), density, domain)
+
+    shape = "hexagonal" if hexagonal else "square"
+    stipple.__name__ = f"{shape}_lattice_{jitter}"
+    stipple.__doc__ = (f"About n points: a {shape} lattice at a random rotation and offset (:func:`rotated_lattice`, "
+                       f"jitter {LATTICE_JITTER[jitter]} spacings), mapped to the density by :func:`warp_by_density`.")
+    return stipple
+
 
 METHODS: dict[str, Method] = {
     "random": random_stipple,
@@ -428,6 +474,10 @@ METHODS: dict[str, Method] = {
     "bayer": bayer_dither,
     "lloyd_few": lloyd_few,
     "lloyd_many": lloyd_many,
+    "lattice_square": _lattice(False, "near"),
+    "lattice_hex": _lattice(True, "near"),
+    "lattice_square_jitter": _lattice(False, "jittered"),
+    "lattice_hex_jitter": _lattice(True, "jittered"),
 }
 FROZEN_METHODS: dict[str, Method] = {
     "sierra_serpentine": sierra_serpentine_error_diffusion,
@@ -441,6 +491,9 @@ LABELS: dict[str, str | tuple[float, float]] = {
     # measured (bench/stippler_labels.py, shipped palette): the mean a, b decoded from each method's stationary samples
     "floyd_steinberg": (21.1, -50.4), "jarvis": (24.8, -41.0), "floyd_steinberg_jitter": (24.1, -43.0),
     "bayer": (18.0, -50.6), "lloyd_few": (21.5, -53.6), "lloyd_many": (18.6, -55.4),
+    # bench/stippler_labels_lattices.json: 8 seeds, each a random rotation and offset
+    "lattice_square": (-12.2, -55.4), "lattice_hex": (-5.9, -59.3),
+    "lattice_square_jitter": (24.0, -43.4), "lattice_hex_jitter": (24.4, -42.0),
 }
 """Training label of each method: a preset name of the pairs' palette, or the (a, b) measured by decoding the method's
 stationary samples with the shipped palette (the module docstring's table)."""

@@ -2,7 +2,9 @@
 
 * :mod:`export.runtime` — ONNX Runtime inference: point sets -> maps;
 * :mod:`export.evidence` — what the points alone say about density (ink per point, pixels without points);
-* :mod:`export.density` — the density post-processing of ``infer`` (sharpen, denoise, ink calibration);
+* :mod:`export.infer_config` — :class:`~export.infer_config.InferConfig`, the constants of ``infer`` around the network;
+* :mod:`export.uncertainty` — L smoothed within the uncertainty a model predicts (``l_scale``);
+* :mod:`export.density` — the density post-processing of ``infer`` for models without ``l_scale`` (sharpen, denoise);
 * :mod:`export.convert` — folders of point files -> maps, and maps -> point files.
 
 The ONNX exporter lives with the network (:mod:`patternshop_nn.onnx_export`), map edits with the other map

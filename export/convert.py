@@ -7,15 +7,15 @@ caller to report. Outputs are written atomically, named after the input
 
 * :func:`convert_points`: each worker process loads the network once
   (:class:`~export.runtime.OnnxModel`), then takes chunks of point files: reads
-  each and infers its map as ``infer`` does (:func:`export.runtime.infer_map`:
-  scale chosen from the pattern unless given, L sharpened where the points are
-  regular and smoothed where its detail is noise, a, b filled where the evidence
-  is thin; but one symmetry per reading by default, where ``infer`` averages 8)
-  and writes a CIELAB TIFF. The network is nearly all the work (about 80 ms
+  each and infers its map as ``infer`` does (:func:`export.runtime.infer_map`,
+  scale chosen from the pattern unless given; but
+  :attr:`~export.infer_config.InferConfig.convert_symmetries` readings per map, one, where ``infer``
+  averages more) and writes a CIELAB TIFF. The network is nearly all the work (about 80 ms
   of one core per reading of a 20k-point file at the default scale, a
-  704 x 704 px raster: 640 px of domain and the mirrored border; a file takes
-  three or more: the pattern, the two resamplings of the denoising, light
-  areas' zooms), so N workers on N idle cores go about N times as fast as one.
+  704 x 704 px raster: 640 px of domain and the mirrored border; a model with
+  ``l_scale`` reads a file once, one without three or more times: the pattern,
+  the two resamplings of the denoising, light areas' zooms), so N workers on N
+  idle cores go about N times as fast as one.
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
 
@@ -47,6 +47,7 @@ from tqdm import tqdm
 
 from data_gen.executor import DASK, LOCAL, Executor, Lost
 from data_gen.storage import StoragePath, as_path, in_process, is_local, local_copies, local_target
+from export.infer_config import DEFAULT_INFER, InferConfig
 from synthesis.atomic import check_writable, remove_stale_temporaries
 from synthesis.conventions import POINTS_PER_INK
 from synthesis.errors import PatternshopError, PatternshopWarning
@@ -212,7 +213,8 @@ class _InferenceSettings:
     bits: int
     memory_limit: float  # bytes one process may use for one file
     symmetries: int  # readings averaged per file (export.runtime.predict_symmetric)
-    denoise: bool  # L smoothed where its detail is noise (export.runtime.refine_density): two more readings per file
+    denoise: bool  # L smoothed (export.runtime.infer_map; without l_scale two more readings per file)
+    config: InferConfig  # the constants around the network
 
 
 def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxModel | None = None) -> list[tuple[int, FileResult]]:
@@ -234,15 +236,16 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
             with local_copies([job.source]) as copies:
                 named = copies.named
                 points = read_points(copies.paths[0])
-            scale = pattern_scale(points, settings.points_per_ink)
+            scale = pattern_scale(points, settings.points_per_ink, settings.config)
             (w, h), (_, side) = points.domain, raster_scale(points.domain, model.raster_size, model.points_per_ink,
-                                                            scale.points_per_ink)
+                                                            scale.points_per_ink, settings.config.border_px)
             width = map_width(points.domain, model, None)
             _check_share(job, inference_bytes(side, width * max(1, round(width * h / w))), f"a {side}x{side} px raster",
                          settings.memory_limit)
             with warnings.catch_warnings(record=True) as caught:  # the saturation warning of a given scale
                 warnings.simplefilter("always", PatternshopWarning)
-                inference = infer_map(points, model, scale=scale, symmetries=settings.symmetries, denoise=settings.denoise)
+                inference = infer_map(points, model, scale=scale, symmetries=settings.symmetries, denoise=settings.denoise,
+                                      config=settings.config)
             notes = tuple(f"{job.source}: {warning.message}" for warning in caught)
             if scale.points_per_ink != POINTS_PER_INK:
                 notes += (f"{job.source}: read at {scale.describe()}",)
@@ -256,8 +259,8 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
 
 def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxModel, batch_size: int = 8,
                    workers: int = 2, bits: int = 16, overwrite: bool = False, progress: bool = False,
-                   points_per_ink: float | None = None, memory_limit: float = math.inf, symmetries: int = 1,
-                   denoise: bool = True, scheduler: str | None = None) -> list[FileResult]:
+                   points_per_ink: float | None = None, memory_limit: float = math.inf, symmetries: int | None = None,
+                   denoise: bool = True, scheduler: str | None = None, config: InferConfig = DEFAULT_INFER) -> list[FileResult]:
     """Infer a map for each point file into ``out_dir/NAME.tif`` (``bits``-bit CIELAB); one result per source, in order.
 
     Args:
@@ -268,17 +271,19 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
         points_per_ink: points per unit area of full ink at the patterns' scale; None takes it per file as ``infer``
             does (:func:`export.evidence.pattern_scale`: the file's header, else chosen from the points).
         memory_limit: bytes all workers together may use; a file whose estimate exceeds its worker's share fails.
-        symmetries: readings averaged per file (:func:`export.runtime.predict_symmetric`); 1 (default) for
-            throughput, 8 for ``infer``'s reading at 8 times the network time.
-        denoise: smooth L where its detail is noise, as ``infer`` does (two more readings per file, about
+        symmetries: readings averaged per file (:func:`export.runtime.predict_symmetric`), one network pass
+            each; None: ``config.convert_symmetries`` (1, for throughput).
+        denoise: smooth L as ``infer`` does (a model without ``l_scale``: two more readings per file, about
             twice the time); False keeps the detail.
         scheduler: see :func:`_executor`.
+        config: the constants around the network (:class:`export.infer_config.InferConfig`).
     """
     if batch_size < 1 or bits not in (8, 16):
         raise PatternshopError(f"batch size must be >= 1 and bits 8 or 16, got {batch_size} and {bits}")
     jobs, results = _plan(sources, out_dir, ".tif", overwrite, absolute=scheduler is not None)
     processes = _processes(workers, math.ceil(len(jobs) / batch_size), scheduler, jobs)
-    settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes, symmetries, denoise)
+    settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes,
+                                  config.convert_symmetries if symmetries is None else symmetries, denoise, config)
     chunks = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
     executor = _executor(processes, scheduler)
     if processes <= 1 and executor.kind == LOCAL:

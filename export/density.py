@@ -42,10 +42,10 @@ by reading two Poisson resamplings of the map (:func:`poisson_resample`, a
 parametric bootstrap: on stationary Poisson patterns at density 0.2 and 0.5
 the network's own detail has 0.88-1.05 of that sample's energy at 1-16 px,
 ``bench/bench_denoise.py``). Level by level (Gaussians of
-1, 2, 4 ... px, :func:`smoothing_levels`), a pixel takes the next smoothing
+1, 2, 4 ... px, :func:`export.uncertainty.smoothing_levels`), a pixel takes the next smoothing
 while the detail it removes is within ``1 +`` :data:`NOISE_TOLERANCE` of the
 energy the same smoothing removes from the noise sample, in windows of
-:data:`NOISE_WINDOW` times the level (at least :data:`MIN_NOISE_WINDOW_PX`): a flat area is smoothed wide, an edge or
+twice the level (at least 8 px; :class:`export.infer_config.InferConfig`): a flat area is smoothed wide, an edge or
 a texture the noise cannot explain keeps its detail. ``infer``
 (:func:`export.runtime.refine_density`) denoises the network's density with
 the Poisson sample, sharpens it, and denoises the sharpened part again with
@@ -65,8 +65,9 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
-from scipy.spatial import cKDTree
 
+from export.infer_config import DEFAULT_INFER, InferConfig
+from export.uncertainty import smoothing_ladder, smoothing_window
 from synthesis.conventions import full_ink_points
 from synthesis.points import PointSet
 from synthesis.raster import point_raster
@@ -84,14 +85,9 @@ POISSON_RATIO = 1.15  # Clark-Evans ratio up to which the network's density is k
 REGULAR_RATIO = 1.65  # ratio from which the filtered KDE is taken whole (Poisson-disk and Lloyd: 1.7)
 MAX_POINT_RATIO = 3.0  # a single point's ratio is capped here (a point the network put in a near-white pixel)
 
-# Denoising (:func:`denoise_density`), in map pixels: the noise sample decides how much is smoothed, so the
-# ladder only has to span the useful widths (1 to 16 px on a 256-px map).
-SMOOTHING_WIDTH_PX = 1.0  # the first smoothing level's Gaussian; each next level doubles it ...
-MAX_SMOOTHING_FRACTION = 1.0 / 16  # ... up to this fraction of the map's long side
-NOISE_WINDOW = 2.0  # removed detail and noise are compared in Gaussian windows this many times the level's width
-MIN_NOISE_WINDOW_PX = 8.0  # ... and never narrower: a narrower window's energy is too noisy an estimate (specks of unsmoothed noise)
+# Denoising (:func:`denoise_density`): the ladder of levels, its windows and softness are InferConfig's
+# (export.uncertainty.smoothing_ladder, shared with the smoothing by a predicted uncertainty).
 NOISE_TOLERANCE = 0.75  # a level is taken where the detail it removes has at most 1 + this times the noise's energy
-NOISE_SOFTNESS = 0.25  # ... fading in over +- this (no hard seams between levels)
 RESAMPLE_SMOOTHING_PX = 2.0  # the intensity a Poisson resampling draws from (:func:`poisson_resample`)
 REGULAR_NOISE_SHARE = 0.3  # a regular pattern's sharpened L, noise energy over the Poisson resampling's (measured)
 
@@ -148,6 +144,8 @@ def clark_evans_ratio(xy_px: np.ndarray, density: np.ndarray, full_ink_per_px: f
     ratio, support = np.zeros(shape), np.zeros(shape)
     if len(xy_px) < 2:
         return ratio
+    from scipy.spatial import cKDTree  # here: importing scipy.spatial costs infer's start-up 0.1-0.3 s
+
     nearest = cKDTree(xy_px).query(xy_px, k=2)[0][:, 1]
     pixels = point_pixels(xy_px, shape)
     points_per_px = np.maximum(density[pixels], 1.0 / density.size) * full_ink_per_px
@@ -206,43 +204,29 @@ def sharpen_density(points: PointSet, density: np.ndarray, points_per_ink: float
     return weight * filtered + (1.0 - weight) * density, weight
 
 
-def smoothing_levels(shape: tuple[int, int]) -> tuple[float, ...]:
-    """Gaussian widths in px of :func:`denoise_density`'s levels on a map (H, W): 1, 2, 4 ... up to 1/16 of its long side."""
-    levels = [SMOOTHING_WIDTH_PX]
-    while 2 * levels[-1] <= MAX_SMOOTHING_FRACTION * max(shape):
-        levels.append(2 * levels[-1])
-    return tuple(levels)
-
-
-def denoise_density(density: np.ndarray, noise: np.ndarray, noise_scale: float | np.ndarray = 1.0
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def denoise_density(density: np.ndarray, noise: np.ndarray, noise_scale: float | np.ndarray = 1.0,
+                    config: InferConfig = DEFAULT_INFER) -> tuple[np.ndarray, np.ndarray]:
     """(density (H, W), smoothing width (H, W) in px): ``density`` (H, W) smoothed where its detail is noise.
 
     ``noise`` (H, W) is a sample of the noise the density carries (:func:`export.runtime.bootstrap_noise`),
     ``noise_scale`` (scalar or (H, W), >= 0) the share of its energy to expect (0: none, nothing is smoothed
-    but flat areas). Level by level (:func:`smoothing_levels`), a pixel takes the next Gaussian smoothing
-    while the detail that smoothing removes, ``density - blur(density)``, has at most ``1 +``
+    but flat areas). Level by level (:func:`export.uncertainty.smoothing_ladder`), a pixel takes the next Gaussian
+    smoothing while the detail that smoothing removes, ``density - blur(density)``, has at most ``1 +``
     :data:`NOISE_TOLERANCE` times the energy the same smoothing removes from the noise sample, both averaged
-    in Gaussian windows of :data:`NOISE_WINDOW` times the level's width: a flat or slowly varying area is
-    smoothed wide, an edge or texture the noise cannot explain keeps its detail. A level refused stops
-    the wider ones (soft over :data:`NOISE_SOFTNESS`). The ink is not restored (the caller water-fills).
+    in Gaussian windows (:func:`export.uncertainty.smoothing_window`): a flat or slowly varying area is
+    smoothed wide, an edge or texture the noise cannot explain keeps its detail. The ink is not restored
+    (the caller water-fills).
     """
     density = np.asarray(density, np.float64)
     noise = np.asarray(noise, np.float64)
-    result, width = density.copy(), np.zeros(density.shape)
-    taken, previous, previous_level = np.ones(density.shape), density, 0.0
-    for level in smoothing_levels(density.shape):
-        smooth = gaussian_filter(density, level)
-        noise_removed = noise - gaussian_filter(noise, level)
-        window = max(MIN_NOISE_WINDOW_PX, NOISE_WINDOW * level)
+
+    def excess(level: float, smooth: np.ndarray) -> np.ndarray:
+        window = smoothing_window(level, config)
         removed_energy = gaussian_filter((density - smooth) ** 2, window)
-        noise_energy = gaussian_filter(noise_removed ** 2 * noise_scale, window)
-        ratio = removed_energy / np.maximum(noise_energy, 1e-12)
-        taken = taken * np.clip((1.0 + NOISE_TOLERANCE + NOISE_SOFTNESS - ratio) / (2.0 * NOISE_SOFTNESS), 0.0, 1.0)
-        result += taken * (smooth - previous)
-        width += taken * (level - previous_level)
-        previous, previous_level = smooth, level
-    return result, width
+        noise_energy = gaussian_filter((noise - gaussian_filter(noise, level)) ** 2 * noise_scale, window)
+        return removed_energy / np.maximum(noise_energy, 1e-12) - NOISE_TOLERANCE
+
+    return smoothing_ladder(density, excess, config)
 
 
 def poisson_resample(density: np.ndarray, full_ink_per_px: float, rng: np.random.Generator) -> np.ndarray:

@@ -7,14 +7,13 @@ Two measurements on the points alone, before and after the network:
    ink (L = 0) holds ``points_per_ink`` points per unit area
    (:data:`synthesis.conventions.POINTS_PER_INK_MEANING`); a pattern denser than
    that somewhere cannot be read at the default 50,000 points per ink. The local density is a kernel density estimate on a grid
-   whose cells hold :data:`FULL_INK_POINTS_PER_CELL` points at full ink (at
-   the default scale), blurred by a Gaussian of :data:`DENSITY_SIGMA_CELLS`
-   cells (about 800 points under the kernel at full ink: 3.5 % noise for a
-   Poisson pattern). When its :data:`DENSE_QUANTILE` quantile exceeds
-   :data:`DENSE_THRESHOLD`, the pattern is read at ``points_per_ink = default
+   whose cells hold ``scale_cell_points`` points at full ink (at
+   the default scale), blurred by a Gaussian of ``scale_sigma_cells``
+   cells. When its ``scale_quantile`` quantile exceeds
+   ``scale_threshold``, the pattern is read at ``points_per_ink = default
    x quantile``, so that quantile reads as full ink; otherwise at the default,
-   so ``infer`` then ``synthesize`` keeps the point count. The threshold sits
-   above the noise of a full-ink Poisson pattern (quantile 1.07-1.09).
+   so ``infer`` then ``synthesize`` keeps the point count (the four constants are
+   :class:`export.infer_config.InferConfig`'s, with the measurements that set them).
 2. **Evidence for correlation** (:func:`local_evidence`). Correlation is a
    property of neighbourhoods: where a neighbourhood holds few points, no
    estimator sees it (below density 0.05-0.1 the network alone gives the
@@ -66,14 +65,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter, maximum_filter
 
+from export.infer_config import DEFAULT_INFER, InferConfig
 from synthesis.conventions import POINTS_PER_INK
 from synthesis.labmap import LabMap
 from synthesis.points import PointSet
 
-FULL_INK_POINTS_PER_CELL = 16.0  # density grid: points per cell of a fully dark map at the default scale
-DENSITY_SIGMA_CELLS = 2.0  # Gaussian kernel of the local density, in grid cells
-DENSE_QUANTILE = 0.99  # the share of the pattern allowed to read denser than full ink
-DENSE_THRESHOLD = 1.15  # local density (quantile, at the default scale) above which the scale is raised
 EVIDENCE_RADIUS_PX = 12.0  # neighbourhood of the correlation evidence, in pixels of the network raster
 MIN_EVIDENCE_POINTS = 6.0  # fewer points in it: correlation is not observable (thin)
 EMPTY_EVIDENCE_POINTS = 0.5  # fewer: no points at all near the pixel (empty)
@@ -93,21 +89,23 @@ class ScaleChoice:
     Attributes:
         points_per_ink: points per unit area of full ink (the synthesiser's ``n = points_per_ink x w x h x mean density``).
         automatic: chosen by :func:`choose_points_per_ink` (False: given by the user or the file's header).
-        local_density_quantile: the :data:`DENSE_QUANTILE` quantile of the local density at the default scale
+        local_density_quantile: the ``quantile`` quantile of the local density at the default scale
             (1 = a fully dark map); None when the scale was given.
         origin: who gave a scale that is not automatic (``"given"``: the user; ``"from the file's header"``).
+        quantile: the quantile taken (:attr:`export.infer_config.InferConfig.scale_quantile`).
     """
 
     points_per_ink: float
     automatic: bool
     local_density_quantile: float | None = None
     origin: str = "given"
+    quantile: float = DEFAULT_INFER.scale_quantile
 
     def describe(self) -> str:
         """One line for the user, e.g. ``80,000 points per ink (automatic: ...)``."""
         if not self.automatic:
             return f"{self.points_per_ink:,.0f} points per ink ({self.origin})"
-        quantile = f"{100 * DENSE_QUANTILE:g}th-percentile local density {self.local_density_quantile:.2f}"
+        quantile = f"{100 * self.quantile:g}th-percentile local density {self.local_density_quantile:.2f}"
         return f"{self.points_per_ink:,.0f} points per ink (automatic: {quantile} of a fully dark map at the default)"
 
     def report(self) -> dict:
@@ -115,25 +113,26 @@ class ScaleChoice:
                 "local_density_quantile": None if self.local_density_quantile is None else round(self.local_density_quantile, 4)}
 
 
-def local_density(points: PointSet, points_per_ink: float) -> np.ndarray:
+def local_density(points: PointSet, points_per_ink: float, config: InferConfig = DEFAULT_INFER) -> np.ndarray:
     """(rows, cols) kernel density estimate of ``points`` in map units (1 = a fully dark map at ``points_per_ink``).
 
-    Grid cells are squares of side ``sqrt(FULL_INK_POINTS_PER_CELL / points_per_ink)`` covering the domain;
-    the blur reflects at the domain's border.
+    Grid cells are squares of side ``sqrt(config.scale_cell_points / points_per_ink)`` covering the domain,
+    blurred by ``config.scale_sigma_cells`` cells; the blur reflects at the domain's border.
     """
     w, h = points.domain
-    cell = math.sqrt(FULL_INK_POINTS_PER_CELL / points_per_ink)
+    cells, sigma = config.scale_cell_points, config.scale_sigma_cells
+    cell = math.sqrt(cells / points_per_ink)
     cols, rows = max(1, math.ceil(w / cell)), max(1, math.ceil(h / cell))
     counts, _, _ = np.histogram2d(points.xy[:, 1], points.xy[:, 0], bins=(rows, cols), range=((0, rows * cell), (0, cols * cell)))
     inside = np.clip(np.array([h / cell, w / cell]) - np.array([rows - 1, cols - 1]), 0.0, 1.0)  # last row/col's share in the domain
     area = np.ones((rows, cols))
     area[-1, :] *= inside[0]
     area[:, -1] *= inside[1]
-    blurred = gaussian_filter(counts, DENSITY_SIGMA_CELLS, mode="reflect") / np.maximum(gaussian_filter(area, DENSITY_SIGMA_CELLS, mode="reflect"), 1e-9)
-    return blurred / FULL_INK_POINTS_PER_CELL
+    blurred = gaussian_filter(counts, sigma, mode="reflect") / np.maximum(gaussian_filter(area, sigma, mode="reflect"), 1e-9)
+    return blurred / cells
 
 
-def pattern_scale(points: PointSet, points_per_ink: float | None = None) -> ScaleChoice:
+def pattern_scale(points: PointSet, points_per_ink: float | None = None, config: InferConfig = DEFAULT_INFER) -> ScaleChoice:
     """The scale ``infer`` and ``convert`` read ``points`` at: ``points_per_ink`` when given, else the one the
     point file's header records (:attr:`synthesis.points.PointSet.points_per_ink`), else
     :func:`choose_points_per_ink` from the default :data:`synthesis.conventions.POINTS_PER_INK`."""
@@ -141,16 +140,16 @@ def pattern_scale(points: PointSet, points_per_ink: float | None = None) -> Scal
         return ScaleChoice(points_per_ink, False)
     if points.points_per_ink is not None:
         return ScaleChoice(points.points_per_ink, False, origin="from the file's header")
-    return choose_points_per_ink(points, POINTS_PER_INK)
+    return choose_points_per_ink(points, POINTS_PER_INK, config)
 
 
-def choose_points_per_ink(points: PointSet, default: float) -> ScaleChoice:
+def choose_points_per_ink(points: PointSet, default: float, config: InferConfig = DEFAULT_INFER) -> ScaleChoice:
     """The points per ink to read ``points`` at: ``default`` unless the pattern is denser (see the module docstring)."""
     if len(points) == 0:
-        return ScaleChoice(default, True, 0.0)
-    quantile = float(np.quantile(local_density(points, default), DENSE_QUANTILE))
-    scale = default * quantile if quantile > DENSE_THRESHOLD else default
-    return ScaleChoice(scale, True, quantile)
+        return ScaleChoice(default, True, 0.0, quantile=config.scale_quantile)
+    quantile = float(np.quantile(local_density(points, default, config), config.scale_quantile))
+    scale = default * quantile if quantile > config.scale_threshold else default
+    return ScaleChoice(scale, True, quantile, quantile=config.scale_quantile)
 
 
 def local_evidence(points: PointSet, shape: tuple[int, int], raster_pixels_per_unit: float) -> np.ndarray:

@@ -17,29 +17,36 @@
    per pixel, at the same spacing in pixels, as in training.
 2. **Mirror and pad.** The raster is :func:`synthesis.raster.point_raster`
    of the points and their mirror images across each side of the domain
-   within :data:`BORDER_PX` raster pixels, on a square canvas of side
-   ``ceil((max(w, h) R + 2 BORDER_PX) / 64) * 64`` (the U-Net needs multiples
-   of 64): the domain's ``w R`` x ``h R`` pixels start at ``(BORDER_PX,
-   BORDER_PX)``, the rest is empty. Without the mirror the network would see
-   the pattern end at the domain's border and darken a rim there (it learnt
-   the synthesiser's thinner borders).
+   within ``border_px`` raster pixels (:class:`export.infer_config.InferConfig`),
+   on a square canvas of side ``ceil((max(w, h) R + 2 border_px) / 64) * 64``
+   (the U-Net needs multiples of 64): the domain's ``w R`` x ``h R`` pixels
+   start at ``(border_px, border_px)``, the rest is empty. Without the mirror
+   the network would see the pattern end at the domain's border and darken a
+   rim there (it learnt the synthesiser's thinner borders).
 3. **Run and crop back.** The network is fully convolutional; :func:`infer_map`
-   averages its outputs over the 8 symmetries of the square (each flipped or
+   averages its outputs over symmetries of the square (each flipped or
    transposed raster's output turned back; :func:`points_to_map`: one run);
    the output is cropped to the domain, decoded (L = 100 x channel 0, a, b = 255 x channels
    1-2 - 128) and resampled to the requested width (default: 256 px on the
    long side, the training maps' resolution).
 
-:func:`infer_map` is what ``infer`` runs (:mod:`export.evidence`): the same
-reading, with the scale chosen from the pattern's own local density unless
-given; the ink scaled so that the map holds the pattern's point count; L
-sharpened from the points where they are regular and smoothed where its detail
-is no more than the noise of two Poisson resamplings of the map shows
-(:mod:`export.density`, :func:`refine_density`); the
-correlation of light areas read again at a zoom (as if the pattern held 2, 4
-... 64 times fewer points per ink, so the network sees them at a density it
-reads correlation at); and a, b filled from the surroundings where even then
-too few points show correlation.
+:func:`infer_map` is what ``infer`` runs: the same reading, with the scale
+chosen from the pattern's own local density unless given (:mod:`export.evidence`),
+and the ink scaled so that the map holds the pattern's point count. Then:
+
+* a model with an ``l_scale`` output (its predicted uncertainty of L) gets
+  L smoothed within that uncertainty (:func:`smooth_reading`,
+  :mod:`export.uncertainty`): one network pass per symmetry, nothing else;
+* a model without it (v5 and earlier) gets :func:`read_v5_stages`: L
+  sharpened from the points where they are regular and smoothed where its
+  detail is no more than the noise of two Poisson resamplings of the map shows
+  (:mod:`export.density`, :func:`refine_density`); the correlation of light
+  areas read again at a zoom (as if the pattern held 2, 4 ... 64 times fewer
+  points per ink, so the network sees them at a density it reads correlation
+  at); and a, b filled from the surroundings where even then too few points
+  show correlation.
+
+Every constant of the first path is :class:`export.infer_config.InferConfig`'s.
 """
 
 from __future__ import annotations
@@ -50,14 +57,17 @@ import os
 import warnings
 from pathlib import Path
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from PIL import Image
+
 from export.density import REGULAR_NOISE_SHARE, denoise_density, poisson_resample, sharpen_density
-from synthesis.edits import resize
 from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
                              fill_thin_correlation, local_evidence, summarise, zoom_levels)
+from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES, InferConfig
+from export.uncertainty import smooth_by_uncertainty
 from synthesis.conventions import full_ink_points
 from synthesis.errors import PatternshopError, PatternshopWarning, require_file
 from synthesis.labmap import POINTS_PER_INK, LabMap
@@ -67,11 +77,11 @@ from synthesis.raster import point_raster
 DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "patternshop_nn" / "assets" / "default.onnx"
 INPUT_NAME = "raster"
 OUTPUT_NAME = "map"
+L_SCALE_NAME = "l_scale"  # the optional second output: (B, 1, H, W) predicted Laplace scale of the density (0..1)
 SIZE_MULTIPLE = 64  # raster sides must be multiples of 2**levels of the U-Net (6 levels)
+# Models without l_scale (v5 and earlier) only; these go with read_v5_stages:
 BOOTSTRAP_SEED = 0  # the Poisson resamplings of :func:`bootstrap_noise` (infer is deterministic)
-BORDER_PX = 32  # raster pixels of mirrored pattern around the domain (the network sees no edge of the points there)
-SYMMETRIES = (1, 4, 8)  # readings averaged over this many symmetries of the square (1: none, 4: flips, 8: and transposes)
-DEFAULT_SYMMETRIES = 8
+V5_SYMMETRIES = 8  # infer's readings per map for them: the model card's figures were measured at 8 (4 overstates the noise)
 
 PathLike = str | os.PathLike
 
@@ -88,6 +98,8 @@ class OnnxModel:
         metadata: the model's metadata (see :mod:`patternshop_nn.onnx_export`), values JSON-decoded.
         raster_size: the training rasters' side (256); :meth:`predict` takes any multiple of 64.
         threads: ONNX Runtime intra-op threads.
+        has_l_scale: the model predicts the Laplace scale of its density (output ``l_scale``): ``infer`` then
+            smooths L by it (:func:`export.uncertainty.smooth_by_uncertainty`) instead of :func:`read_v5_stages`.
 
     Raises:
         PatternshopError: the file is missing, unreadable, or not a Patternshop model.
@@ -114,10 +126,12 @@ class OnnxModel:
             raise PatternshopError(f"{self.path}: not a readable ONNX model ({reason})") from exc
         inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
         shape = inputs[0].shape if len(inputs) == 1 else []
-        if ([i.name for i in inputs], [o.name for o in outputs]) != ([INPUT_NAME], [OUTPUT_NAME]) or len(shape) != 4 \
-                or shape[1] != 1:
+        output_names = [o.name for o in outputs]
+        if [i.name for i in inputs] != [INPUT_NAME] or output_names not in ([OUTPUT_NAME], [OUTPUT_NAME, L_SCALE_NAME]) \
+                or len(shape) != 4 or shape[1] != 1:
             raise PatternshopError(f"{self.path}: not a Patternshop model (needs input '{INPUT_NAME}' (B, 1, H, W) "
-                                   f"and output '{OUTPUT_NAME}')")
+                                   f"and output '{OUTPUT_NAME}', optionally '{L_SCALE_NAME}')")
+        self.has_l_scale = L_SCALE_NAME in output_names
         self.metadata = {key: _decode(value) for key, value in self.session.get_modelmeta().custom_metadata_map.items()}
         if "patternshop_format" not in self.metadata:
             raise PatternshopError(f"{self.path}: not a Patternshop model (no patternshop_format in its metadata; "
@@ -132,13 +146,24 @@ class OnnxModel:
 
     def predict(self, rasters: np.ndarray) -> np.ndarray:
         """Maps (B, 3, H, W) float32 in [0, 1] (L/100, z_a, z_b) for rasters (B, 1, H, W) in [0, 1], H, W multiples of 64."""
-        rasters = np.ascontiguousarray(rasters, dtype=np.float32)
-        if rasters.ndim != 4 or rasters.shape[1] != 1 or rasters.shape[2] % SIZE_MULTIPLE or rasters.shape[3] % SIZE_MULTIPLE:
-            raise ValueError(f"rasters must have shape (B, 1, H, W) with H, W multiples of {SIZE_MULTIPLE}, got {rasters.shape}")
-        return self.session.run([OUTPUT_NAME], {INPUT_NAME: rasters})[0]
+        return self.session.run([OUTPUT_NAME], {INPUT_NAME: _checked(rasters)})[0]
+
+    def predict_outputs(self, rasters: np.ndarray) -> np.ndarray:
+        """(B, C, H, W) float32: the map's 3 channels (:meth:`predict`), then with :attr:`has_l_scale` the
+        predicted Laplace scale of the density (C = 4), for rasters (B, 1, H, W); one network pass."""
+        names = [OUTPUT_NAME, L_SCALE_NAME] if self.has_l_scale else [OUTPUT_NAME]
+        return np.concatenate(self.session.run(names, {INPUT_NAME: _checked(rasters)}), axis=1)
 
     def __repr__(self) -> str:
         return f"OnnxModel({self.path}, {self.raster_size} px)"
+
+
+def _checked(rasters: np.ndarray) -> np.ndarray:
+    """Rasters as float32 (B, 1, H, W), H and W multiples of :data:`SIZE_MULTIPLE` (ValueError otherwise)."""
+    rasters = np.ascontiguousarray(rasters, dtype=np.float32)
+    if rasters.ndim != 4 or rasters.shape[1] != 1 or rasters.shape[2] % SIZE_MULTIPLE or rasters.shape[3] % SIZE_MULTIPLE:
+        raise ValueError(f"rasters must have shape (B, 1, H, W) with H, W multiples of {SIZE_MULTIPLE}, got {rasters.shape}")
+    return rasters
 
 
 def _decode(value: str) -> object:
@@ -165,38 +190,40 @@ def mirrored(points: PointSet, margin: float) -> np.ndarray:
 
 
 def pattern_raster(points: PointSet, raster_size: int, trained_points_per_ink: float | None,
-                   points_per_ink: float = POINTS_PER_INK) -> tuple[np.ndarray, float]:
+                   points_per_ink: float = POINTS_PER_INK, border_px: int = DEFAULT_INFER.border_px) -> tuple[np.ndarray, float]:
     """(raster (S, S) float32 in [0, 1], pixels per unit R) of a pattern, mirrored at its border and padded (steps 1-2).
 
     ``raster_size`` and ``trained_points_per_ink`` are the model's (:class:`OnnxModel`); a model that does not
     record its points per ink is taken to share the pattern's (R = raster_size). The domain's pixels start at
-    (:data:`BORDER_PX`, :data:`BORDER_PX`).
+    (``border_px``, ``border_px``) (:attr:`export.infer_config.InferConfig.border_px`).
     """
-    scale, side = raster_scale(points.domain, raster_size, trained_points_per_ink, points_per_ink)
-    margin = BORDER_PX / scale
+    scale, side = raster_scale(points.domain, raster_size, trained_points_per_ink, points_per_ink, border_px)
+    margin = border_px / scale
     return point_raster((mirrored(points, margin) + margin) * (scale / side), side), scale
 
 
 def raster_scale(domain: tuple[float, float], raster_size: int, trained_points_per_ink: float | None,
-                 points_per_ink: float = POINTS_PER_INK) -> tuple[float, int]:
+                 points_per_ink: float = POINTS_PER_INK, border_px: int = DEFAULT_INFER.border_px) -> tuple[float, int]:
     """(pixels per unit R, raster side S in pixels, a multiple of 64 holding the domain and its mirrored border)."""
     if not points_per_ink > 0:
         raise PatternshopError(f"points per ink must be positive, got {points_per_ink:g}")
     w, h = domain
     scale = raster_size * math.sqrt(points_per_ink / (trained_points_per_ink or points_per_ink))
-    return scale, SIZE_MULTIPLE * max(1, math.ceil((scale * max(w, h) + 2 * BORDER_PX) / SIZE_MULTIPLE - 1e-9))
+    return scale, SIZE_MULTIPLE * max(1, math.ceil((scale * max(w, h) + 2 * border_px) / SIZE_MULTIPLE - 1e-9))
 
 
-def output_to_map(output: np.ndarray, domain: tuple[float, float], scale: float, width: int) -> LabMap:
+def output_to_map(output: np.ndarray, domain: tuple[float, float], scale: float, width: int,
+                  border_px: int = DEFAULT_INFER.border_px) -> LabMap:
     """Decode one network output (3, S, S) in [0, 1]: crop to the domain's ``w R`` x ``h R`` pixels, resample to ``width``."""
-    lab_map = LabMap.from_network(domain_crop(output, domain, scale))
-    return resize(lab_map, width) if width != lab_map.width else lab_map
+    lab_map = LabMap.from_network(domain_crop(output, domain, scale, border_px))
+    return resample_map(lab_map, (max(1, round(width * lab_map.height / lab_map.width)), width))
 
 
-def domain_crop(output: np.ndarray, domain: tuple[float, float], scale: float) -> np.ndarray:
-    """(3, hR, wR) the part of a network output (3, S, S) over the domain (from :data:`BORDER_PX` on)."""
+def domain_crop(output: np.ndarray, domain: tuple[float, float], scale: float,
+                border_px: int = DEFAULT_INFER.border_px) -> np.ndarray:
+    """(C, hR, wR) the part of a network output (C, S, S) over the domain (from ``border_px`` on)."""
     w, h = domain
-    return np.asarray(output, np.float32)[:, BORDER_PX : BORDER_PX + max(1, round(h * scale)), BORDER_PX : BORDER_PX + max(1, round(w * scale))]
+    return np.asarray(output, np.float32)[:, border_px : border_px + max(1, round(h * scale)), border_px : border_px + max(1, round(w * scale))]
 
 
 def map_width(domain: tuple[float, float], model: OnnxModel, width: int | None) -> int:
@@ -229,16 +256,20 @@ class Inference:
     """What :func:`infer_map` made: the map, the scale it read the pattern at, and the correlation evidence.
 
     ``output`` is the network's raw output over the domain (3, hR, wR) in [0, 1] of the main reading,
-    ``pixels_per_unit`` its raster's pixels per unit of the domain (R). ``zooms`` are the readings made for correlation (1: the main one only), ``zoomed_share``
+    ``pixels_per_unit`` its raster's pixels per unit of the domain (R). ``evidence`` summarises where too few
+    points show correlation (None for a model with ``l_scale``, which reads thin areas itself). ``zooms`` are the
+    readings made for correlation (1: the main one only), ``zoomed_share``
     the share of the map whose a, b came from a zoomed reading, ``calibration`` the ink factor applied
     (None: the network's L as it came), ``symmetries`` how many symmetries each reading averaged,
     ``sharpened_share`` the share of L taken from the points rather than the network, ``denoised_px`` the
-    mean width (px) of the smoothing L took where its detail was noise (:mod:`export.density`).
+    mean width (px) of the smoothing L took where its detail was noise (:mod:`export.density`) or within its
+    predicted uncertainty (:mod:`export.uncertainty`); ``l_scale`` (H, W) that prediction, the Laplace scale of
+    the map's density in density units (times the ink factor), None for a model without it.
     """
 
     lab_map: LabMap
     scale: ScaleChoice
-    evidence: EvidenceSummary
+    evidence: EvidenceSummary | None
     output: np.ndarray
     pixels_per_unit: float
     zooms: tuple[int, ...] = (1,)
@@ -247,13 +278,15 @@ class Inference:
     symmetries: int = 1
     sharpened_share: float = 0.0
     denoised_px: float = 0.0
+    l_scale: np.ndarray | None = None
 
     def report(self) -> dict:
         return {"width": self.lab_map.width, "height": self.lab_map.height, "symmetries": self.symmetries,
-                **self.scale.report(), **self.evidence.report(),
+                **self.scale.report(), **(self.evidence.report() if self.evidence is not None else {}),
                 "correlation_zooms": list(self.zooms), "zoomed_share": round(self.zoomed_share, 4),
                 "ink_calibration_factor": None if self.calibration is None else round(self.calibration, 4),
-                "sharpened_share": round(self.sharpened_share, 4), "denoised_px": round(self.denoised_px, 3)}
+                "sharpened_share": round(self.sharpened_share, 4), "denoised_px": round(self.denoised_px, 3),
+                "l_scale_mean": None if self.l_scale is None else round(float(self.l_scale.mean()), 5)}
 
 
 def dihedral(array: np.ndarray, code: int, inverse: bool = False) -> np.ndarray:
@@ -270,35 +303,70 @@ def dihedral(array: np.ndarray, code: int, inverse: bool = False) -> np.ndarray:
     return array
 
 
-def predict_symmetric(model: OnnxModel, raster: np.ndarray, symmetries: int = DEFAULT_SYMMETRIES) -> np.ndarray:
-    """(3, S, S) the network's output for a raster (S, S), averaged over ``symmetries`` (:data:`SYMMETRIES`)
-    symmetries of the square: each transformed raster's output transformed back. The network was trained on
-    all 8 (``data.augment``); averaging cancels what of its response is not symmetric (noise read as
+def predict_symmetric(model: OnnxModel, raster: np.ndarray, symmetries: int) -> np.ndarray:
+    """(C, S, S) the network's outputs (:meth:`OnnxModel.predict_outputs`) for a raster (S, S), averaged over
+    ``symmetries`` (:data:`export.infer_config.SYMMETRY_CHOICES`) symmetries of the square, codes 0 ..
+    ``symmetries - 1`` of :func:`dihedral`: each transformed raster's output transformed back. The network was
+    trained on all 8 (``data.augment``); averaging cancels what of its response is not symmetric (noise read as
     structure). One raster per run, so memory stays that of one reading."""
-    if symmetries not in SYMMETRIES:
-        raise PatternshopError(f"symmetries must be one of {', '.join(map(str, SYMMETRIES))}, got {symmetries}")
-    total = np.zeros((3, *raster.shape), np.float64)
+    if symmetries not in SYMMETRY_CHOICES:
+        raise PatternshopError(f"symmetries must be one of {', '.join(map(str, SYMMETRY_CHOICES))}, got {symmetries}")
+    total = None
     for code in range(symmetries):
-        output = model.predict(np.ascontiguousarray(dihedral(raster, code))[None, None])[0]
-        total += dihedral(output, code, inverse=True)
-    return (total / symmetries).astype(np.float32)
+        output = dihedral(model.predict_outputs(np.ascontiguousarray(dihedral(raster, code))[None, None])[0], code, inverse=True)
+        total = np.array(output, np.float32) if total is None else np.add(total, output, out=total)
+    return total if symmetries == 1 else total / np.float32(symmetries)
 
 
-def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shape: tuple[int, int],
-                 symmetries: int = DEFAULT_SYMMETRIES) -> tuple[LabMap, np.ndarray, float]:
-    """(map resampled to ``shape`` (H, W), raw output over the domain (3, hR, wR), pixels per unit R): one reading,
+def resample_channel(channel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) float32 of a channel (h, w) resampled to ``shape`` (H, W) as :func:`synthesis.edits.resize` does (bilinear,
+    antialiased when shrinking; not imported from there, which would bring numba into ``infer``'s start-up)."""
+    if channel.shape == shape:
+        return np.asarray(channel, np.float32)
+    image = Image.fromarray(np.ascontiguousarray(channel, np.float32)).resize((shape[1], shape[0]), Image.Resampling.BILINEAR)
+    return np.asarray(image, np.float32)
+
+
+def resample_map(lab_map: LabMap, shape: tuple[int, int]) -> LabMap:
+    """The map resampled to ``shape`` (H, W), channel by channel (:func:`resample_channel`)."""
+    if lab_map.L.shape == shape:
+        return lab_map
+    return LabMap(np.stack([resample_channel(lab_map.lab[..., c], shape) for c in range(3)], axis=-1))
+
+
+def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shape: tuple[int, int], symmetries: int,
+                 border_px: int = DEFAULT_INFER.border_px) -> tuple[LabMap, np.ndarray, float, np.ndarray | None]:
+    """(map resampled to ``shape`` (H, W), raw map output over the domain (3, hR, wR), pixels per unit R, the
+    predicted Laplace scale of the density resampled to ``shape`` (H, W), None without ``l_scale``): one reading,
     averaged over ``symmetries`` (:func:`predict_symmetric`)."""
-    raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink)
-    output = domain_crop(predict_symmetric(model, raster, symmetries), points.domain, pixels_per_unit)
-    lab_map = LabMap.from_network(output)
-    lab_map = resize(lab_map, shape[1]) if shape[1] != lab_map.width else lab_map
-    if lab_map.L.shape != shape:
-        lab_map = resize(lab_map, shape[1], shape[0])
-    return lab_map, output, pixels_per_unit
+    raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink, border_px)
+    output = domain_crop(predict_symmetric(model, raster, symmetries), points.domain, pixels_per_unit, border_px)
+    lab_map = resample_map(LabMap.from_network(output[:3]), shape)
+    l_scale = resample_channel(output[3], shape).astype(np.float64) if len(output) > 3 else None
+    return lab_map, output[:3], pixels_per_unit, l_scale
 
 
-def bootstrap_noise(points: PointSet, model: OnnxModel, density: np.ndarray, points_per_ink: float,
-                    symmetries: int = DEFAULT_SYMMETRIES) -> np.ndarray:
+def with_density(lab_map: LabMap, density: np.ndarray) -> LabMap:
+    """The map with L from ``density`` (H, W) in [0, 1] and its own a, b."""
+    return LabMap(np.concatenate([100.0 * (1.0 - density[..., None]), lab_map.ab.astype(np.float64)], axis=-1))
+
+
+def smooth_reading(reading: Inference, density: np.ndarray, l_scale: np.ndarray, ink: float, smooth: bool,
+                   config: InferConfig = DEFAULT_INFER) -> Inference:
+    """A model with ``l_scale``: the reading's ``density`` (H, W) in [0, 1] (calibrated) smoothed within its predicted
+    Laplace scale ``l_scale`` (H, W) times the ink factor (:func:`export.uncertainty.smooth_by_uncertainty`), then
+    water-filled back to ``ink`` (mean density); ``smooth`` False (or no points) keeps it."""
+    l_scale = l_scale * (reading.calibration if reading.calibration is not None else 1.0)
+    if not smooth or ink <= 0:
+        return replace(reading, l_scale=l_scale)
+    smoothed, width = smooth_by_uncertainty(density, l_scale, config)
+    smoothed, _ = calibrate_density(smoothed, ink)
+    return replace(reading, lab_map=with_density(reading.lab_map, smoothed), denoised_px=float(width.mean()), l_scale=l_scale)
+
+
+# --- models without l_scale (v5 and earlier): zoomed correlation, thin fill, sharpening, bootstrap denoising ----------
+def bootstrap_noise(points: PointSet, model: OnnxModel, density: np.ndarray, points_per_ink: float, symmetries: int,
+                    config: InferConfig = DEFAULT_INFER) -> np.ndarray:
     """(H, W) a sample of the noise in the network's calibrated density of a pattern, its ``density`` (H, W)
     in [0, 1] at ``points_per_ink``: the difference of two readings of Poisson resamplings of that density
     (:func:`export.density.poisson_resample`, seed :data:`BOOTSTRAP_SEED`), over sqrt(2). A parametric
@@ -311,13 +379,13 @@ def bootstrap_noise(points: PointSet, model: OnnxModel, density: np.ndarray, poi
     for _ in range(2):
         xy = poisson_resample(density, full_ink_points(points_per_ink, points.domain) / density.size, rng) / px_per_unit
         resampled = PointSet(np.minimum(xy, np.asarray(points.domain)), points.domain)
-        lab_map, _, _ = read_pattern(resampled, model, points_per_ink, shape, symmetries)
+        lab_map = read_pattern(resampled, model, points_per_ink, shape, symmetries, config.border_px)[0]
         readings.append(calibrate_density(lab_map.density(), len(resampled) / full_ink_points(points_per_ink, points.domain))[0])
     return (readings[0] - readings[1]) / math.sqrt(2.0)
 
 
 def refine_density(points: PointSet, model: OnnxModel, density: np.ndarray, points_per_ink: float, sharpen: bool,
-                   denoise: bool, symmetries: int = DEFAULT_SYMMETRIES) -> tuple[np.ndarray, float, float]:
+                   denoise: bool, symmetries: int, config: InferConfig = DEFAULT_INFER) -> tuple[np.ndarray, float, float]:
     """(density (H, W), share sharpened, mean smoothing width in px) of the network's calibrated ``density``
     (H, W) in [0, 1] of ``points`` at ``points_per_ink``, with the ink restored.
 
@@ -330,67 +398,36 @@ def refine_density(points: PointSet, model: OnnxModel, density: np.ndarray, poin
     ink = len(points) / full_ink_points(points_per_ink, points.domain)
     refined, width, weight = density, np.zeros(density.shape), np.zeros(density.shape)
     if denoise:
-        noise = bootstrap_noise(points, model, density, points_per_ink, symmetries)
-        refined, width = denoise_density(refined, noise)
+        noise = bootstrap_noise(points, model, density, points_per_ink, symmetries, config)
+        refined, width = denoise_density(refined, noise, config=config)
     if sharpen:
         refined, weight = sharpen_density(points, refined, points_per_ink)
         if denoise:
             refined, _ = calibrate_density(refined, ink)
-            refined, regular_width = denoise_density(refined, noise, REGULAR_NOISE_SHARE * weight)
+            refined, regular_width = denoise_density(refined, noise, REGULAR_NOISE_SHARE * weight, config)
             width = np.hypot(width, regular_width)  # two Gaussian smoothings in a row: widths add in quadrature
     refined, _ = calibrate_density(refined, ink)
     return refined, float(weight.mean()), float(width.mean())
 
 
-def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
-              fill_thin: bool = True, calibrate: bool = True, symmetries: int = DEFAULT_SYMMETRIES,
-              sharpen: bool = True, denoise: bool = True) -> Inference:
-    """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
-
-    Args:
-        points: the pattern.
-        model: the network.
-        width: map width in pixels (default: 256 on the long side).
-        scale: the pattern's scale; None chooses it (:func:`export.evidence.choose_points_per_ink`, the
-            default :data:`POINTS_PER_INK` unless the pattern is denser). A given scale warns
-            (:class:`PatternshopWarning`) when the pattern holds more points than a fully dark map.
-        fill_thin: read a, b of light areas at a zoom (:func:`export.evidence.correlation_zoom`) and replace
-            them where the evidence stays thin by the surrounding well-observed a, b.
-        calibrate: scale the ink to the pattern's point count (:func:`export.evidence.calibrate_density`);
-            False keeps the network's L.
-        sharpen: with ``calibrate``, take L from the points where they are regular
-            (:func:`export.density.sharpen_density`), then restore the ink; a, b are read as without it.
-        denoise: with ``calibrate``, smooth L where its detail is what the pattern's own noise explains
-            (:func:`refine_density`); a, b are read as without it.
-        symmetries: readings averaged over this many symmetries of the square (:func:`predict_symmetric`).
-
-    Raises:
-        PatternshopError: a degenerate pattern, most points on top of each other
-            (:func:`synthesis.analysis.check_not_degenerate`, as ``analyze`` refuses it).
-    """
-    from synthesis.analysis import check_not_degenerate
-
-    check_not_degenerate(points)
-    scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK)
-    if not scale.automatic:
-        message = saturation_warning(len(points), scale.points_per_ink, points.domain)
-        if message:
-            warnings.warn(message, PatternshopWarning, stacklevel=2)
-    width_px = map_width(points.domain, model, width)
-    shape = (max(1, round(width_px * points.domain[1] / points.domain[0])), width_px)
-    lab_map, output, pixels_per_unit = read_pattern(points, model, scale.points_per_ink, shape, symmetries)
-    density, factor = lab_map.density(), None
-    if calibrate:
-        density, factor = calibrate_density(density, len(points) / full_ink_points(scale.points_per_ink, points.domain))
-    ab = lab_map.ab.astype(np.float64)
-    evidence = local_evidence(points, shape, pixels_per_unit)
+def read_v5_stages(points: PointSet, model: OnnxModel, reading: Inference, density: np.ndarray, fill_thin: bool,
+                   sharpen: bool, denoise: bool, config: InferConfig = DEFAULT_INFER) -> Inference:
+    """A model without ``l_scale``: the reading (its ``density`` (H, W) in [0, 1], calibrated when
+    ``reading.calibration`` is set) finished as ``infer`` did for v5 (see :func:`infer_map`'s arguments):
+    light areas' a, b from zoomed readings and thin a, b filled (:mod:`export.evidence`), L sharpened and
+    denoised (:func:`refine_density`). Deleted with the last such model, with :func:`refine_density`,
+    :func:`bootstrap_noise` and the stages they call."""
+    shape, scale, symmetries = density.shape, reading.scale, reading.symmetries
+    ab = reading.lab_map.ab.astype(np.float64)
+    evidence = local_evidence(points, shape, reading.pixels_per_unit)
     zooms, zoomed_share = (1,), 0.0
     if fill_thin and len(points):
         zoom = correlation_zoom(density)
         zooms = zoom_levels(zoom)
         ab_readings, evidence_readings = [ab], [evidence]
         for f in zooms[1:]:
-            zoomed, _, zoomed_pixels_per_unit = read_pattern(points, model, scale.points_per_ink / f, shape, symmetries)
+            zoomed, _, zoomed_pixels_per_unit, _ = read_pattern(points, model, scale.points_per_ink / f, shape, symmetries,
+                                                                config.border_px)
             ab_readings.append(zoomed.ab.astype(np.float64))
             evidence_readings.append(local_evidence(points, shape, zoomed_pixels_per_unit))
         ab, evidence = blend_zoomed(zoom, zooms, ab_readings), blend_zoomed(zoom, zooms, evidence_readings)
@@ -400,12 +437,67 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
     if fill_thin:
         lab_map, source = fill_thin_correlation(lab_map, evidence)
     sharpened_share = denoised_px = 0.0
-    if calibrate and (sharpen or denoise) and len(points):  # L only: the zoom and the fill above read the network's density
+    if reading.calibration is not None and (sharpen or denoise) and len(points):  # L only: the zoom and the fill read the network's density
         refined, sharpened_share, denoised_px = refine_density(points, model, density, scale.points_per_ink, sharpen,
-                                                               denoise, symmetries)
-        lab_map = LabMap(np.concatenate([100.0 * (1.0 - refined[..., None]), lab_map.ab], axis=-1))
-    return Inference(lab_map, scale, summarise(evidence, fill_thin and source, source), output, pixels_per_unit, zooms,
-                     zoomed_share, factor, symmetries, sharpened_share, denoised_px)
+                                                               denoise, symmetries, config)
+        lab_map = with_density(lab_map, refined)
+    return replace(reading, lab_map=lab_map, evidence=summarise(evidence, fill_thin and source, source), zooms=zooms,
+                   zoomed_share=zoomed_share, sharpened_share=sharpened_share, denoised_px=denoised_px)
+
+
+def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
+              fill_thin: bool = True, calibrate: bool = True, symmetries: int | None = None,
+              sharpen: bool = True, denoise: bool = True, config: InferConfig = DEFAULT_INFER) -> Inference:
+    """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
+
+    Args:
+        points: the pattern.
+        model: the network.
+        width: map width in pixels (default: 256 on the long side).
+        scale: the pattern's scale; None chooses it (:func:`export.evidence.choose_points_per_ink`, the
+            default :data:`POINTS_PER_INK` unless the pattern is denser). A given scale warns
+            (:class:`PatternshopWarning`) when the pattern holds more points than a fully dark map.
+        fill_thin: (models without ``l_scale``) read a, b of light areas at a zoom
+            (:func:`export.evidence.correlation_zoom`) and replace them where the evidence stays thin by the
+            surrounding well-observed a, b.
+        calibrate: scale the ink to the pattern's point count (:func:`export.evidence.calibrate_density`);
+            False keeps the network's L.
+        sharpen: (models without ``l_scale``) with ``calibrate``, take L from the points where they are regular
+            (:func:`export.density.sharpen_density`), then restore the ink; a, b are read as without it.
+        denoise: with ``calibrate``, smooth L: within its predicted uncertainty (:func:`smooth_reading`), or,
+            for a model without ``l_scale``, where its detail is what the pattern's own noise explains
+            (:func:`refine_density`); a, b are read as without it.
+        symmetries: readings averaged over this many symmetries of the square (:func:`predict_symmetric`);
+            None: ``config.symmetries`` for a model with ``l_scale``, :data:`V5_SYMMETRIES` for one without.
+        config: the constants around the network (:class:`export.infer_config.InferConfig`).
+
+    Raises:
+        PatternshopError: a degenerate pattern, most points on top of each other
+            (:func:`synthesis.analysis.check_not_degenerate`, as ``analyze`` refuses it).
+    """
+    from synthesis.analysis import check_not_degenerate
+
+    check_not_degenerate(points)
+    scale = scale if scale is not None else choose_points_per_ink(points, POINTS_PER_INK, config)
+    if not scale.automatic:
+        message = saturation_warning(len(points), scale.points_per_ink, points.domain)
+        if message:
+            warnings.warn(message, PatternshopWarning, stacklevel=2)
+    if symmetries is None:
+        symmetries = config.symmetries if model.has_l_scale else V5_SYMMETRIES
+    width_px = map_width(points.domain, model, width)
+    shape = (max(1, round(width_px * points.domain[1] / points.domain[0])), width_px)
+    lab_map, output, pixels_per_unit, l_scale = read_pattern(points, model, scale.points_per_ink, shape, symmetries,
+                                                             config.border_px)
+    density, factor = lab_map.density().astype(np.float64), None
+    ink = len(points) / full_ink_points(scale.points_per_ink, points.domain)
+    if calibrate:
+        density, factor = calibrate_density(density, ink)
+    reading = Inference(with_density(lab_map, density), scale, None, output, pixels_per_unit, calibration=factor,
+                        symmetries=symmetries)
+    if l_scale is None:
+        return read_v5_stages(points, model, reading, density, fill_thin, sharpen, denoise, config)
+    return smooth_reading(reading, density, l_scale, ink, calibrate and denoise and len(points) > 0, config)
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

@@ -47,6 +47,7 @@ if TYPE_CHECKING:
 
     from export.convert import FileResult
     from export.evidence import ScaleChoice
+    from export.infer_config import InferConfig
     from export.runtime import Inference, OnnxModel
     from synthesis.analysis import plot_analysis
     from synthesis.edits import density_gradient, expand, read_region, rect_region, resize
@@ -78,6 +79,7 @@ _REEXPORTS = {
     "Palette": "synthesis.palette",
     "SynthesisResult": "synthesis.synthesize",
     "Inference": "export.runtime",
+    "InferConfig": "export.infer_config",
     "FileResult": "export.convert",
     "OnnxModel": "export.runtime",
     "read_map": "synthesis.mapio",
@@ -378,46 +380,56 @@ def load_model(path: PathLike | None = None, *, threads: int = 1) -> OnnxModel:
     return model
 
 
-def infer_scale(points: PointSet, points_per_ink: float | None = None) -> ScaleChoice:
+def infer_scale(points: PointSet, points_per_ink: float | None = None, *, config: InferConfig | None = None) -> ScaleChoice:
     """The scale :func:`infer` reads a pattern at: ``points_per_ink`` if given (> 0), else the one its file's
     header records (``points.points_per_ink``, written by :func:`synthesize`), else 50,000 unless the pattern is
-    denser somewhere (then the scale at which its densest 1% reads as full ink).
+    denser somewhere (then the scale at which its densest 1% reads as full ink; ``config``: the constants of
+    that choice, default :data:`export.infer_config.DEFAULT_INFER`).
 
     Returns an :class:`~export.evidence.ScaleChoice` (``.points_per_ink``, ``.automatic``, ``.describe()``).
     """
     from export.evidence import pattern_scale
+    from export.infer_config import DEFAULT_INFER
 
-    return pattern_scale(points, None if points_per_ink is None else _check_positive("points_per_ink", points_per_ink))
+    return pattern_scale(points, None if points_per_ink is None else _check_positive("points_per_ink", points_per_ink),
+                         config or DEFAULT_INFER)
 
 
 def infer(
     points: PointSet | PathLike,
     *,
     model: OnnxModel | PathLike | None = None,
-    points_per_ink: float | None = None,
+    points_per_ink: float | ScaleChoice | None = None,
     width: int | None = None,
-    symmetries: int = 8,
+    symmetries: int | None = None,
     fill: bool = True,
     calibrate: bool = True,
     sharpen: bool = True,
     denoise: bool = True,
     threads: int = 1,
+    config: InferConfig | None = None,
 ) -> Inference:
     """The map (density and correlation) of a point pattern, read by the network (``patternshop infer``).
 
     Args:
         points: the pattern, or the path of a point file (an empty pattern gives a white map).
         model: a model from :func:`load_model`, the path of an ``.onnx`` model, or None for the shipped one.
-        points_per_ink: points per unit area of full ink at the pattern's scale, > 0 (default: :func:`infer_scale`:
-            the point file's header, written by :func:`synthesize`, else chosen from the points).
+        points_per_ink: points per unit area of full ink at the pattern's scale, > 0, or the
+            :class:`~export.evidence.ScaleChoice` :func:`infer_scale` returned for these points (not chosen again;
+            default: :func:`infer_scale`: the point file's header, written by :func:`synthesize`, else chosen from the points).
         width: map width in pixels, >= 1 (default: 256 px on the domain's long side).
-        symmetries: average the network over 8 (flips and transposes), 4 (flips) or 1 (8x faster) symmetries.
-        fill: read the correlation of light areas at a zoom and fill it where too few points show it.
+        symmetries: average the network over 8 (flips and transposes), 4 (flips), 2 or 1 symmetries, one network
+            pass each (default: ``config.symmetries`` for a model with an ``l_scale`` output, else 8).
+        fill: read the correlation of light areas at a zoom and fill it where too few points show it (models
+            without ``l_scale``).
         calibrate: scale the ink so that the map holds the pattern's point count (False: the network's L;
             then ``sharpen`` and ``denoise`` do nothing).
-        sharpen: take L from the points themselves where they are regular (blue noise, Lloyd, dithering).
-        denoise: smooth L where its detail is no larger than the pattern's own noise.
+        sharpen: take L from the points themselves where they are regular (blue noise, Lloyd, dithering; models
+            without ``l_scale``).
+        denoise: smooth L: within the uncertainty a model with ``l_scale`` predicts, else where its detail is no
+            larger than the pattern's own noise.
         threads: ONNX Runtime threads, when the model is loaded here.
+        config: the constants around the network (default :data:`export.infer_config.DEFAULT_INFER`).
 
     Returns:
         An :class:`~export.runtime.Inference`: ``.lab_map`` (the map, on the pattern's domain), ``.scale``,
@@ -426,6 +438,8 @@ def infer(
     Raises:
         PatternshopError: a missing model or point file, or a bad option.
     """
+    from export.evidence import ScaleChoice
+    from export.infer_config import DEFAULT_INFER
     from export.runtime import OnnxModel, infer_map
 
     points = _as_points(points, allow_empty=True)
@@ -433,8 +447,9 @@ def infer(
         _check_int("width", width, 1)
     if not isinstance(model, OnnxModel):
         model = load_model(model, threads=threads)
-    return infer_map(points, model, width=width, scale=infer_scale(points, points_per_ink), fill_thin=fill,
-                     calibrate=calibrate, symmetries=symmetries, sharpen=sharpen, denoise=denoise)
+    scale = points_per_ink if isinstance(points_per_ink, ScaleChoice) else infer_scale(points, points_per_ink, config=config)
+    return infer_map(points, model, width=width, scale=scale, fill_thin=fill, calibrate=calibrate, symmetries=symmetries,
+                     sharpen=sharpen, denoise=denoise, config=config or DEFAULT_INFER)
 
 
 # --- batches ------------------------------------------------------------------------------------------------
@@ -453,8 +468,9 @@ def convert(
     progress_bar: bool = False,
     points_per_ink: float | None = None,
     bits: int = 16,
-    symmetries: int = 1,
+    symmetries: int | None = None,
     denoise: bool = True,
+    config: InferConfig | None = None,
     points: int | None = None,
     schedule: str = "fast",
     iterations: int | None = None,
@@ -483,8 +499,10 @@ def convert(
         points_per_ink: the scale point files are read at (default: per file, as :func:`infer`), and maps
             synthesised at with ``resynthesize`` (default 50,000).
         bits: 8 or 16 bits per sample of the output TIFFs.
-        symmetries: network readings averaged per file: 1 (default, for throughput), 4 or 8 (as :func:`infer`).
-        denoise: smooth L where its detail is noise, as :func:`infer` does (about twice the network time).
+        symmetries: network readings averaged per file: 1, 2, 4 or 8 (default: ``config.convert_symmetries``, 1, for
+            throughput).
+        denoise: smooth L as :func:`infer` does (for a model without ``l_scale``, about twice the network time).
+        config: the constants around the network (default :data:`export.infer_config.DEFAULT_INFER`).
         points, schedule, iterations, seed, palette: ``resynthesize`` only, as in :func:`synthesize` (every map
             gets the same seed); ``palette`` the path of a palette asset.
 
@@ -514,11 +532,12 @@ def convert(
                                      palette=None if palette is None else os.fspath(palette))
         return resynthesize_maps(sources, out_dir, settings, workers=workers, threads=threads, overwrite=overwrite,
                                  progress=progress_bar, memory_limit=memory_limit, scheduler=scheduler)
+    from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES
     from export.runtime import OnnxModel
 
     _check_int("batch_size", batch_size, 1)
-    if symmetries not in (1, 4, 8):
-        raise PatternshopError(f"symmetries must be 1, 4 or 8, got {symmetries!r}")
+    if symmetries is not None and symmetries not in SYMMETRY_CHOICES:
+        raise PatternshopError(f"symmetries must be one of {', '.join(map(str, SYMMETRY_CHOICES))}, got {symmetries!r}")
     sources = point_files(in_dir)
     if not sources:
         raise PatternshopError(f"{in_dir}: no point files (.txt, .csv, .xy, .pts, .npy)")
@@ -526,7 +545,8 @@ def convert(
         model = load_model(model, threads=threads)
     return convert_points(sources, out_dir, model, batch_size=batch_size, workers=workers, bits=bits,
                           overwrite=overwrite, progress=progress_bar, points_per_ink=points_per_ink,
-                          memory_limit=memory_limit, symmetries=symmetries, denoise=denoise, scheduler=scheduler)
+                          memory_limit=memory_limit, symmetries=symmetries, denoise=denoise, scheduler=scheduler,
+                          config=config or DEFAULT_INFER)
 
 
 # --- a pattern's correlation --------------------------------------------------------------------------------

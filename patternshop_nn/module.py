@@ -4,7 +4,16 @@ Manual optimisation, one discriminator and one generator step per batch:
 
 * discriminator: ``(GAN(D(x, y), real) + GAN(D(x, G(x)), fake)) / 2``;
 * generator: ``L1(G(x), y) + adversarial_weight * GAN(D(x, G(x)), real)``
-  (paper: weight 0.001);
+  (paper: weight 0.001); with ``l_scale=True`` the generator also predicts the
+  Laplace scale b of L (:meth:`~patternshop_nn.networks.DualBranchUNet.forward_with_scale`)
+  and L's term of the L1 becomes ``l_nll_weight`` times the Laplace negative
+  log-likelihood ``|y - mu| / b + log b`` (a, b keep their L1; the mean over
+  the three channels as before). The weight multiplies the whole NLL, so its
+  minimum stays at ``b = |y - mu|``; it sets how hard the shared encoder is
+  pulled by L against a, b (``|y - mu| / b`` is about ``1 / b`` times L's L1);
+  the scale head's parameters learn at ``l_scale_lr`` (a new head on a
+  fine-tuned network: at the network's rate it stays nearly flat for
+  hundreds of steps);
 * Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
   learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
   ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
@@ -26,7 +35,7 @@ import torch
 from torch import nn
 
 from patternshop_nn.baselines import LATENT_MIN_DENSITY
-from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator, init_weights
+from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator, init_weights, laplace_nll
 
 LR_POLICIES = ("step", "linear")
 
@@ -38,7 +47,7 @@ class Pix2PixModule(L.LightningModule):
                  disc_channels: int = 16, disc_layers: int = 3, gan_mode: str = "vanilla", adversarial_weight: float = 0.001,
                  lr: float = 1e-4, betas: tuple[float, float] = (0.5, 0.999), lr_halving_epochs: int = 100,
                  sample_images: int = 4, upsample: str = "transposed", lr_policy: str = "step", lr_constant_epochs: int = 0,
-                 lr_decay_epochs: int = 20) -> None:
+                 lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -46,7 +55,7 @@ class Pix2PixModule(L.LightningModule):
         self.automatic_optimization = False
         # upsample's default, "transposed", rebuilds checkpoints whose hparams predate the option;
         # conf/model/pix2pix.yaml (and the shipped model) use resize-convolution ("nearest").
-        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample)
+        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample, l_scale)
         self.discriminator = PatchDiscriminator(4, disc_channels, disc_layers)
         init_weights(self.generator)
         init_weights(self.discriminator)
@@ -56,9 +65,28 @@ class Pix2PixModule(L.LightningModule):
     def forward(self, raster: torch.Tensor) -> torch.Tensor:
         return self.generator(raster)
 
+    def _generate(self, raster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(map (B, 3, S, S), Laplace scale of L (B, 1, S, S) or None without the head)."""
+        if self.hparams.get("l_scale", False):
+            return self.generator.forward_with_scale(raster)
+        return self.generator(raster), None
+
+    def reconstruction_loss(self, fake: torch.Tensor, scale: torch.Tensor | None, target: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        """The generator's non-adversarial loss (L1, or L's Laplace NLL and a, b's L1; module docstring) and its parts to log."""
+        l1 = self.l1(fake, target)
+        if scale is None:
+            return l1, {"l1": l1}
+        nll = laplace_nll(target[:, :1], fake[:, :1], scale).mean()
+        ab = (fake[:, 1:] - target[:, 1:]).abs().mean()
+        return (self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0, {"l1": l1, "l_nll": nll}
+
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams
-        optimizers = [torch.optim.Adam(net.parameters(), lr=hp.lr, betas=tuple(hp.betas)) for net in (self.generator, self.discriminator)]
+        head = list(self.generator.scale.parameters()) if hp.get("l_scale", False) else []
+        rest = [p for p in self.generator.parameters() if all(p is not q for q in head)]
+        groups = [{"params": rest}] + ([{"params": head, "lr": hp.get("l_scale_lr", hp.lr)}] if head else [])
+        optimizers = [torch.optim.Adam(groups, lr=hp.lr, betas=tuple(hp.betas)),
+                      torch.optim.Adam(self.discriminator.parameters(), lr=hp.lr, betas=tuple(hp.betas))]
         return optimizers, [self._scheduler(opt) for opt in optimizers]
 
     def _scheduler(self, optimizer: torch.optim.Optimizer) -> torch.optim.lr_scheduler.LRScheduler:
@@ -72,7 +100,7 @@ class Pix2PixModule(L.LightningModule):
     def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> None:
         raster, target = batch
         opt_g, opt_d = self.optimizers()
-        fake = self.generator(raster)
+        fake, scale = self._generate(raster)
 
         self.toggle_optimizer(opt_d)
         loss_d = 0.5 * (self.gan_loss(self.discriminator(raster, target), True)
@@ -83,16 +111,16 @@ class Pix2PixModule(L.LightningModule):
         self.untoggle_optimizer(opt_d)
 
         self.toggle_optimizer(opt_g)
-        loss_l1 = self.l1(fake, target)
+        loss_rec, parts = self.reconstruction_loss(fake, scale, target)
         loss_adv = self.gan_loss(self.discriminator(raster, fake), True)
-        loss_g = loss_l1 + self.hparams.adversarial_weight * loss_adv
+        loss_g = loss_rec + self.hparams.adversarial_weight * loss_adv
         opt_g.zero_grad(set_to_none=True)
         self.manual_backward(loss_g)
         opt_g.step()
         self.untoggle_optimizer(opt_g)
 
-        self.log_dict({"train/l1": loss_l1, "train/adv": loss_adv, "train/d": loss_d}, prog_bar=True, on_step=True,
-                      on_epoch=True, batch_size=len(raster))
+        self.log_dict({**{f"train/{name}": value for name, value in parts.items()}, "train/adv": loss_adv, "train/d": loss_d},
+                      prog_bar=True, on_step=True, on_epoch=True, batch_size=len(raster))
 
     def on_train_epoch_end(self) -> None:
         for scheduler in self.lr_schedulers():
@@ -100,8 +128,13 @@ class Pix2PixModule(L.LightningModule):
 
     def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> None:
         raster, target = batch
-        predicted = self.generator(raster)
+        predicted, scale = self._generate(raster)
         density_error = (predicted[:, 0] - target[:, 0]).abs().mean()
+        if scale is not None:  # calibration: a Laplace scale is the expected |error|, so the ratio should be about 1
+            self.log_dict({"val/l_nll": laplace_nll(target[:, :1], predicted[:, :1], scale).mean(),
+                           "val/l_scale_mean": scale.mean(),
+                           "val/l_error_over_scale": ((predicted[:, :1] - target[:, :1]).abs() / scale).mean()},
+                          batch_size=len(raster))
         inked = (1.0 - target[:, 0]) >= LATENT_MIN_DENSITY
         latent_error = (predicted[:, 1:] - target[:, 1:]).abs().mean(dim=1)[inked]
         # batch sums weighted like the metrics' definitions (pixels; inked pixels for the latent)

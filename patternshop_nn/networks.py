@@ -5,6 +5,11 @@ Shapes and ranges (B = batch, S = raster size, a multiple of ``2**levels``):
 * generator input: (B, 1, S, S) point raster in [0, 1] (:func:`synthesis.raster.point_raster`);
 * generator output: (B, 3, S, S) in [0, 1]: channel 0 is L/100 (``1 - density``),
   channels 1-2 the latent z of the correlation (``a, b = 255 z - 128``);
+* with ``l_scale=True``, :meth:`DualBranchUNet.forward_with_scale` also gives (B, 1, S, S) > 0: the
+  Laplace scale ``b`` of channel 0 (the expected absolute error of L/100, i.e. of the density, in 0..1 units),
+  from its own head (``scale``: like a decoder's head, on the density decoder's last features; softplus +
+  :data:`L_SCALE_MIN`), so the map's layers are those of a generator without it; trained by the Laplace
+  negative log-likelihood :func:`laplace_nll`;
 * discriminator input: raster and map concatenated, (B, 4, S, S); output: (B, 1, S/8 - 2, S/8 - 2)
   patch logits (30 x 30 at S = 256; 3 strided layers, a 70 x 70 receptive field as pix2pix's PatchGAN).
 
@@ -41,6 +46,13 @@ import torch.nn.functional as F
 from torch import nn
 
 UPSAMPLING = ("transposed", "nearest", "bilinear")
+L_SCALE_MIN = 1e-3  # smallest Laplace scale of L/100 the head predicts (a tenth of an L unit)
+
+
+def laplace_nll(target: torch.Tensor, mean: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Per-pixel Laplace negative log-likelihood ``|target - mean| / scale + log scale`` (without log 2); for a fixed
+    error it is smallest at ``scale = |target - mean|``. Shapes broadcast; scale > 0."""
+    return (target - mean).abs() / scale + torch.log(scale)
 
 
 def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:
@@ -80,11 +92,15 @@ class Decoder(nn.Module):
         self.ups = nn.ModuleList(ups)
         self.head = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], out_channels, upsample, bias=True))
 
-    def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
+    def last_features(self, features: list[torch.Tensor]) -> torch.Tensor:
+        """(B, 2 widths[0], S/2, S/2): what the head reads (the last up level's output and the first skip)."""
         x = self.ups[0](features[-1])
         for up, skip in zip(self.ups[1:], reversed(features[:-1][1:]), strict=True):
             x = up(torch.cat([x, skip], 1))
-        return self.head(torch.cat([x, features[0]], 1))
+        return torch.cat([x, features[0]], 1)
+
+    def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
+        return self.head(self.last_features(features))
 
 
 class DualBranchUNet(nn.Module):
@@ -97,10 +113,12 @@ class DualBranchUNet(nn.Module):
         upsample: the decoders' up-sampling, one of :data:`UPSAMPLING` (see module docstring). The
             argument's default, "transposed", rebuilds checkpoints whose recorded hyperparameters
             do not name it; the config (and the shipped model) use "nearest".
+        l_scale: a head for the Laplace scale of L on the density decoder's last features
+            (:meth:`forward_with_scale`); :meth:`forward` gives the map alone either way.
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
-                 dropout: float = 0.0, upsample: str = "transposed") -> None:
+                 dropout: float = 0.0, upsample: str = "transposed", l_scale: bool = False) -> None:
         super().__init__()
         if levels < 2:
             raise ValueError(f"levels must be at least 2, got {levels}")
@@ -109,20 +127,48 @@ class DualBranchUNet(nn.Module):
         widths = [min(base_channels * 2**k, max_channels) for k in range(levels)]
         self.levels = levels
         self.upsample = upsample
+        self.l_scale = l_scale
         self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1)
         self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < levels - 1) for k in range(1, levels))
         self.density = Decoder(widths, 1, dropout, upsample)
         self.correlation = Decoder(widths, 2, dropout, upsample)
+        if l_scale:
+            self.scale = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], 1, upsample, bias=True))
 
-    def forward(self, raster: torch.Tensor) -> torch.Tensor:
-        """(B, 1, S, S) raster in [0, 1] -> (B, 3, S, S) map in [0, 1] (L/100, z_a, z_b)."""
+    def _encode(self, raster: torch.Tensor) -> list[torch.Tensor]:
+        """The encoder's features, first level first."""
         side = raster.shape[-1]
         if raster.shape[-2] != side or side % 2**self.levels:
             raise ValueError(f"raster must be square with a side divisible by {2**self.levels}, got {tuple(raster.shape[-2:])}")
         features = [self.first(raster)]
         for down in self.downs:
             features.append(down(features[-1]))
+        return features
+
+    def forward(self, raster: torch.Tensor) -> torch.Tensor:
+        """(B, 1, S, S) raster in [0, 1] -> (B, 3, S, S) map in [0, 1] (L/100, z_a, z_b)."""
+        features = self._encode(raster)
         return torch.sigmoid(torch.cat([self.density(features), self.correlation(features)], 1))
+
+    def forward_with_scale(self, raster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(map (B, 3, S, S) as :meth:`forward`, Laplace scale of L/100 (B, 1, S, S) >= :data:`L_SCALE_MIN`); needs ``l_scale``."""
+        if not self.l_scale:
+            raise ValueError("this generator has no l_scale head (built with l_scale=False)")
+        features = self._encode(raster)
+        last = self.density.last_features(features)
+        lab = torch.sigmoid(torch.cat([self.density.head(last), self.correlation(features)], 1))
+        return lab, F.softplus(self.scale(last)) + L_SCALE_MIN
+
+
+class WithScale(nn.Module):
+    """A generator with an ``l_scale`` head whose ``forward`` returns (map, l_scale): the exported graph's two outputs."""
+
+    def __init__(self, generator: DualBranchUNet) -> None:
+        super().__init__()
+        self.generator = generator
+
+    def forward(self, raster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.generator.forward_with_scale(raster)
 
 
 class NearestUpConv(nn.Module):

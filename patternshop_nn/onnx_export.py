@@ -6,7 +6,11 @@ one output ``map``, shape (B, 3, H, W) float32 in [0, 1]: channel 0 is
 L/100 (density ``1 - L/100``), channels 1-2 the correlation latent z
 (``a, b = 255 z - 128``). All of B, H and W are dynamic (H and W multiples of
 64): the network was trained on 256 x 256 rasters, and inference feeds larger
-ones for denser patterns (:mod:`export.runtime`).
+ones for denser patterns (:mod:`export.runtime`). A generator with an
+uncertainty head (``l_scale=True``) has a second output
+:data:`export.runtime.L_SCALE_NAME` (``l_scale``), shape (B, 1, H, W) float32 > 0: the Laplace scale ``b`` of channel 0,
+i.e. the expected absolute error of the density (1 - L/100), in density units
+(0..1); the metadata's ``outputs`` names both.
 
 The model's ``metadata_props`` hold, each value JSON-encoded:
 
@@ -17,6 +21,7 @@ The model's ``metadata_props`` hold, each value JSON-encoded:
 * ``raster_function``, ``raster_size``, and ``points_per_ink`` when known: how
   the input is made and the point count of a fully dark unit square in training;
 * ``generator``: class, levels and parameter count of the network;
+* ``outputs``: each output's name and meaning (``map``, and ``l_scale`` when present);
 * any model-card fields the caller passes (name, dataset, description, ...).
 
 Nearest up-sampling and its convolution are exported fused
@@ -39,8 +44,8 @@ import torch
 from torch import nn
 
 from data_gen.provenance import file_sha256, utc_now
-from export.runtime import INPUT_NAME, OUTPUT_NAME, OnnxModel
-from patternshop_nn.networks import fuse_upsampling
+from export.runtime import INPUT_NAME, L_SCALE_NAME, OUTPUT_NAME, OnnxModel
+from patternshop_nn.networks import WithScale, fuse_upsampling
 from synthesis.atomic import atomic_path
 from synthesis.errors import PatternshopError
 from synthesis.palette import DEFAULT_PALETTE, FORMAT_VERSION
@@ -50,7 +55,9 @@ from synthesis.version import package_version
 OPSET = 17
 FORMAT = 1  # layout of the metadata below; bump when it changes
 RASTER_FUNCTION = "synthesis.raster.point_raster"
-EXPORTER_KEYS = ("patternshop_format", "patternshop_version", "exported", "raster_function", "raster_size", "generator")
+EXPORTER_KEYS = ("patternshop_format", "patternshop_version", "exported", "raster_function", "raster_size", "generator", "outputs")
+OUTPUT_MEANINGS = {OUTPUT_NAME: "(B, 3, H, W) in [0, 1]: L/100, z_a, z_b",
+                   L_SCALE_NAME: "(B, 1, H, W) > 0: Laplace scale b of L/100, the expected |error| of the density (0..1 units)"}
 
 PathLike = str | os.PathLike
 
@@ -98,7 +105,8 @@ def metadata_from_pairs(pairs_dir: PathLike) -> dict:
             "points_per_ink": manifest["settings"]["points_per_ink"], "palette_sha256": manifest["palette"]["sha256"]}
 
 
-def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, metadata: dict | None = None, fuse: bool = True) -> dict:
+def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, metadata: dict | None = None, fuse: bool = True,
+                l_scale: bool = True) -> dict:
     """Export the generator to ONNX at ``path`` (atomically) and return the metadata written.
 
     Args:
@@ -109,6 +117,8 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
             override the shipped palette's. The keys in :data:`EXPORTER_KEYS` are the exporter's.
         fuse: export nearest up-sampling fused (:func:`patternshop_nn.networks.fuse_upsampling`); False keeps
             the training graph (for comparisons).
+        l_scale: export the uncertainty head's ``l_scale`` output when the generator has one (False: ``map`` only,
+            the one-output graph of older models).
 
     Raises:
         PatternshopError: unreadable checkpoint, or metadata that sets an exporter key.
@@ -121,12 +131,14 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
     parameters = sum(p.numel() for p in generator.parameters())  # the trained net's (fusing turns its up-convolutions into buffers)
     if fuse:
         fuse_upsampling(generator)
+    outputs = [OUTPUT_NAME, L_SCALE_NAME] if l_scale and getattr(generator, "l_scale", False) else [OUTPUT_NAME]
     props = {"palette_sha256": file_sha256(DEFAULT_PALETTE), "palette_format": FORMAT_VERSION, **metadata,
              "patternshop_format": FORMAT, "patternshop_version": package_version(), "exported": utc_now(),
              "raster_function": RASTER_FUNCTION, "raster_size": RASTER_SIZE,
              "generator": {"class": type(generator).__name__, "levels": getattr(generator, "levels", None),
                            "upsample": getattr(generator, "upsample", None),
-                           "parameters": parameters}}
+                           "parameters": parameters},
+             "outputs": {name: OUTPUT_MEANINGS[name] for name in outputs}}
     example = torch.zeros(1, 1, RASTER_SIZE, RASTER_SIZE)
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), torch.no_grad():
@@ -134,9 +146,9 @@ def export_onnx(checkpoint_or_module: PathLike | nn.Module, path: PathLike, meta
             # generator's Python shape check is not part of the graph (OnnxModel.predict checks shapes)
             warnings.filterwarnings("ignore", category=torch.jit.TracerWarning)
             warnings.filterwarnings("ignore", category=DeprecationWarning)
-            torch.onnx.export(generator, (example,), str(tmp), input_names=[INPUT_NAME], output_names=[OUTPUT_NAME],
-                              opset_version=OPSET, dynamo=False,
-                              dynamic_axes={name: {0: "batch", 2: "height", 3: "width"} for name in (INPUT_NAME, OUTPUT_NAME)})
+            torch.onnx.export(WithScale(generator) if len(outputs) > 1 else generator, (example,), str(tmp),
+                              input_names=[INPUT_NAME], output_names=outputs, opset_version=OPSET, dynamo=False,
+                              dynamic_axes={name: {0: "batch", 2: "height", 3: "width"} for name in (INPUT_NAME, *outputs)})
         model = onnx.load(str(tmp))
         onnx.helper.set_model_props(model, {key: json.dumps(value) for key, value in props.items()})
         onnx.checker.check_model(model, full_check=True)

@@ -54,7 +54,7 @@ from PIL import Image
 from data_gen.stipplers import METHODS, lloyd_stipple, poisson_disk
 from export.density import count_raster
 from export.evidence import ScaleChoice
-from export.runtime import DEFAULT_SYMMETRIES, Inference, OnnxModel, infer_map
+from export.runtime import Inference, OnnxModel, infer_map
 from patternshop_nn.baselines import KDE_BANDWIDTHS, kde_density
 from synthesis.conventions import POINTS_PER_INK, full_ink_points
 from synthesis.labmap import LabMap
@@ -95,7 +95,7 @@ STATIONARY: dict[str, tuple[Callable[[int, int], np.ndarray], str]] = {  # proce
 
 def infer(points: PointSet, model: OnnxModel, fill: bool, scale: ScaleChoice | None = None) -> Inference:
     """``infer``'s reading of a pattern (``fill``), or the network's alone: one run, no calibration, zoom or fill."""
-    return infer_map(points, model, scale=scale, fill_thin=fill, calibrate=fill, symmetries=DEFAULT_SYMMETRIES if fill else 1)
+    return infer_map(points, model, scale=scale, fill_thin=fill, calibrate=fill, symmetries=None if fill else 1)
 
 
 def picture_density(name: str) -> tuple[np.ndarray, tuple[float, float]]:
@@ -218,7 +218,7 @@ def stationary(model: OnnxModel, palette: Palette, densities: tuple[float, ...],
                          "right_preset_share": round(nearest_preset_share(lab_map, palette, preset), 4),
                          "mean_L": round(float(lab_map.L.mean()), 2), "L_spread_p5_p95": round(float(np.subtract(*np.percentile(lab_map.L, [95, 5]))), 2),
                          "mean_a": round(float(lab_map.ab[..., 0].mean()), 1), "mean_b": round(float(lab_map.ab[..., 1].mean()), 1),
-                         "thin_evidence_share": round(inference.evidence.thin_share, 4),
+                         "thin_evidence_share": None if inference.evidence is None else round(inference.evidence.thin_share, 4),
                          **lattice(inference)})
             maps.append(lab_map.to_srgb())
         previews.append((process, maps))
@@ -329,6 +329,7 @@ def evaluate_ood(model_path: Path, palette: Palette, quick: bool, seed: int, pre
     sheets: dict[str, list] = {"stipplings": [], "stationary": [], "inventions": []}
     start = time.perf_counter()
     results = {"model": str(model_path), "model_name": model.metadata.get("name"), "quick": quick, "seed": seed, "fill_thin": fill,
+               "l_scale": model.has_l_scale,
                "stipplings": stipplings(model, pictures, seed, fill, sheets["stipplings"]),
                "stationary": stationary(model, palette, densities, seed, fill, sheets["stationary"]),
                "inventions": inventions(model, palette, seed, not quick, fill, sheets["inventions"]),
@@ -368,9 +369,13 @@ def targets(results: dict) -> list[dict]:
 
 def markdown(results: dict) -> str:
     """The results as markdown tables: targets, stipplings, stationary processes, point counts."""
-    reading = ("as infer makes them (8 symmetries averaged, ink calibrated, L sharpened where the points are regular and "
-               "smoothed where its detail is noise, "
-               "light areas read zoomed, thin a,b filled)" if results["fill_thin"] else "as the network gave them (--raw)")
+    if not results["fill_thin"]:
+        reading = "as the network gave them (--raw)"
+    elif results.get("l_scale"):
+        reading = "as infer makes them (symmetries averaged, ink calibrated, L smoothed within the predicted uncertainty)"
+    else:
+        reading = ("as infer makes them (8 symmetries averaged, ink calibrated, L sharpened where the points are regular and "
+                   "smoothed where its detail is noise, light areas read zoomed, thin a,b filled)")
     lines = [f"# Out-of-distribution evaluation: {results.get('model_name') or results['model']}", "",
              f"{'Quick' if results['quick'] else 'Full'} run, seed {results['seed']}, {results['seconds']} s, maps {reading}.", "",
              "| figure | target | measured | met |", "|---|---|---|---|"]

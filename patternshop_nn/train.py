@@ -5,7 +5,8 @@
 2. Trains :class:`~patternshop_nn.module.Pix2PixModule` with the Lightning
    Trainer of ``trainer=cpu|gpu|ddp``, checkpointing into ``${run_dir}/checkpoints``
    (``last.ckpt`` every ``checkpoint_every_n_steps`` steps and at epoch ends,
-   ``best.ckpt`` by validation L1). Rerunning the same command resumes from
+   ``best.ckpt`` by validation L1; with ``keep_epoch_checkpoints=true`` also ``epoch=K.ckpt``
+   after every epoch). Rerunning the same command resumes from
    ``last.ckpt`` (``resume=false`` starts over). ``init_from=<checkpoint>``
    starts a new run (new optimisers and schedule) from another run's weights:
    a fine-tuning stage, e.g. on whole rasters with a decaying learning rate.
@@ -102,6 +103,8 @@ def train(cfg: DictConfig) -> dict:
         ModelCheckpoint(dirpath=checkpoints, filename="best", monitor="val/l1", mode="min", save_top_k=1),
         timer,
     ]
+    if cfg.get("keep_epoch_checkpoints"):  # checkpoints/epoch=K.ckpt at every epoch end, all kept (interim models)
+        callbacks.append(ModelCheckpoint(dirpath=checkpoints, filename="{epoch}", save_top_k=-1, every_n_epochs=1))
     logger = hydra.utils.instantiate(cfg.logger)
     trainer = hydra.utils.instantiate(cfg.trainer, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir))
     last = checkpoints / "last.ckpt"

@@ -10,8 +10,8 @@ from scipy.stats import qmc
 
 from data_gen.stipplers import lloyd_stipple, random_stipple
 from export.density import (POISSON_RATIO, REGULAR_RATIO, SHARP_BANDWIDTH, clark_evans_ratio, count_raster, denoise_density,
-                            map_points, poisson_resample, regularity_weight, sharpen_density, smoothing_levels, spacing_kde,
-                            two_guide_filter)
+                            map_points, poisson_resample, regularity_weight, sharpen_density, spacing_kde, two_guide_filter)
+from export.uncertainty import smoothing_levels
 from synthesis.generators import generate
 from synthesis.points import PointSet
 

@@ -13,7 +13,8 @@ import torch
 
 from data_gen.provenance import file_sha256
 from patternshop_nn.onnx_export import OPSET, export_onnx, max_abs_difference
-from export.runtime import BORDER_PX, OnnxModel, check_palette, mirrored, pattern_raster, points_to_map
+from export.infer_config import DEFAULT_INFER
+from export.runtime import OnnxModel, check_palette, mirrored, pattern_raster, points_to_map
 from patternshop_nn.module import Pix2PixModule
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.mapio import read_map
@@ -129,7 +130,7 @@ def test_pattern_scale_matches_training(tiny_onnx):
     """A pattern at points_per_ink P (per unit area) is rasterised at 256 sqrt(P / P_train) px per unit: same points per pixel."""
     model = OnnxModel(tiny_onnx)  # trained at 8000 points per ink
     square = uniform_points(20_000)
-    b = BORDER_PX
+    b = DEFAULT_INFER.border_px
     raster, scale = pattern_raster(square, 256, 8000, 50_000)
     assert scale == pytest.approx(640) and raster.shape == (704, 704)  # 640 + 2 x 32 mirrored, a multiple of 64
     inside = raster[b : b + 640, b : b + 640]
@@ -166,7 +167,7 @@ def test_non_square_domain_is_padded_and_cropped(tiny_onnx, domain):
     assert (lab_map.width, lab_map.height) == (round(256 * w), round(256 * h))
     assert lab_map.domain == pytest.approx(domain)
     raster, scale = pattern_raster(points, 256, 8000, 8000)
-    full = model.predict(raster[None, None])[0][:, BORDER_PX:, BORDER_PX:]
+    full = model.predict(raster[None, None])[0][:, DEFAULT_INFER.border_px:, DEFAULT_INFER.border_px:]
     native = points_to_map(points, model, width=round(w * scale), points_per_ink=8000)
     np.testing.assert_allclose(native.L, 100 * full[0, : native.height, : native.width], atol=1e-3)
     np.testing.assert_allclose(native.ab, 255 * full[1:, : native.height, : native.width].transpose(1, 2, 0) - 128, atol=1e-3)

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from export.evidence import (DENSE_THRESHOLD, EVIDENCE_RADIUS_PX, INKED_DENSITY, MAX_ZOOM, WORK_DENSITY, ZOOM_NEIGHBOURHOOD_PX, ScaleChoice, blend_zoomed,
+from export.evidence import (EVIDENCE_RADIUS_PX, INKED_DENSITY, MAX_ZOOM, WORK_DENSITY, ZOOM_NEIGHBOURHOOD_PX, ScaleChoice, blend_zoomed,
                              calibrate_density, choose_points_per_ink, correlation_zoom, fill_thin_correlation, local_evidence,
                              summarise, zoom_levels)
+from export.infer_config import DEFAULT_INFER
 from patternshop_nn.onnx_export import export_onnx
 from patternshop_nn.networks import DualBranchUNet
 from synthesis.generators import generate
@@ -38,10 +39,10 @@ def test_scale_is_raised_only_for_patterns_denser_than_full_ink(process: str, n:
     choice = choose_points_per_ink(PointSet(generate(process, n, seed=1)), DEFAULT)
     assert choice.automatic
     if raised:  # the densest 1 % reads as full ink: a stationary pattern at 1.5 x full ink reads just below 1
-        assert choice.local_density_quantile > DENSE_THRESHOLD
+        assert choice.local_density_quantile > DEFAULT_INFER.scale_threshold
         assert n < choice.points_per_ink < 1.15 * n
     else:
-        assert choice.points_per_ink == DEFAULT and choice.local_density_quantile < DENSE_THRESHOLD
+        assert choice.points_per_ink == DEFAULT and choice.local_density_quantile < DEFAULT_INFER.scale_threshold
 
 
 def test_scale_of_an_empty_pattern_is_the_default() -> None:

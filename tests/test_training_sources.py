@@ -11,6 +11,7 @@ from data_gen.pairs import PairSettings, generate
 from data_gen.provenance import compose_config
 from data_gen.shards import load_pairs, target_to_map
 from data_gen.stipplers import DEFAULT_METHODS, LABELS, METHODS, bayer_matrix
+from synthesis.errors import PatternshopError
 from synthesis.synthesize import point_count
 
 NEW = ("floyd_steinberg", "jarvis", "floyd_steinberg_jitter", "bayer", "lloyd_few", "lloyd_many")
@@ -84,3 +85,94 @@ def test_tiny_pairs_run_with_textures_and_new_stipplers(tmp_path):
         assert meta["method"] in ("jarvis", "bayer", "lloyd_few", "floyd_steinberg_jitter")
         wanted = point_count(target_to_map(target), 1500)
         assert abs(len(pairs.points_of(k)) - wanted) <= 0.1 * wanted, (meta, wanted)
+
+
+# --- network v6's draws (conf/generation/v6.yaml): points per ink log-uniform, lattices at random rotations ----------
+def scale_settings(share: float = 1.0) -> PairSettings:
+    return PairSettings.from_config(compose_config("pairs", ["map_size=32", f"scale.share={share}"]))
+
+
+def test_points_per_ink_draw_is_log_uniform_over_its_range():
+    from scipy.stats import kstest
+
+    from data_gen.pairs import scale_variant
+
+    settings = scale_settings()
+    low, high = settings.scale["points_per_ink"]
+    lab_map = target_to_map(np.full((32, 32, 3), 128, np.uint8))
+    rng = np.random.default_rng(0)
+    drawn = np.array([scale_variant(settings, lab_map, rng)[1] for _ in range(400)])
+    assert low <= drawn.min() and drawn.max() <= high
+    logs = (np.log(drawn) - np.log(low)) / (np.log(high) - np.log(low))
+    assert kstest(logs, "uniform").pvalue > 0.01  # a uniform draw in ppi would put 98 % above the middle of the log range
+    assert 0.4 < np.mean(drawn < np.sqrt(low * high)) < 0.6
+    assert scale_variant(scale_settings(0.0), lab_map, rng) == (lab_map, settings.points_per_ink)
+
+
+def test_scale_zooms_the_map_above_the_base_and_lightens_it_below():
+    from data_gen.pairs import scale_variant, zoom_window
+
+    ramp = np.tile(np.linspace(0.0, 1.0, 64), (64, 1))
+    lab = np.stack([100 * (1 - ramp), np.zeros_like(ramp), np.zeros_like(ramp)], -1)
+    zoomed = zoom_window(lab, 4.0, np.random.default_rng(1))
+    assert zoomed.shape == lab.shape
+    slope = np.diff(zoomed[32, :, 0]).mean()
+    assert slope == pytest.approx(np.diff(lab[32, :, 0]).mean() / 4.0, rel=0.05)  # a quarter of the map, 4 times wider
+    settings = scale_settings()
+    lab_map = target_to_map(np.stack([np.full((32, 32), 100, np.uint8), np.full((32, 32), 128, np.uint8),
+                                      np.full((32, 32), 128, np.uint8)], -1))  # density 0.6 (L = 40 stored as 100/255)
+    for seed in range(20):
+        scaled, drawn = scale_variant(settings, lab_map, np.random.default_rng(seed))
+        if drawn < settings.points_per_ink:  # lightened by drawn / base
+            assert scaled.density().mean() == pytest.approx(lab_map.density().mean() * drawn / settings.points_per_ink, abs=0.01)
+        else:  # a uniform map stays uniform when zoomed
+            assert scaled.density().mean() == pytest.approx(lab_map.density().mean(), abs=0.01)
+
+
+def lattice_angle(xy: np.ndarray, period: float) -> float:
+    """Orientation (radians, modulo the lattice's rotational period) of the nearest-neighbour vectors of xy (k, 2)."""
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(xy).query(xy, k=2)
+    delta = xy[nearest[:, 1]] - xy
+    angles = np.mod(np.arctan2(delta[:, 1], delta[:, 0]), period) * (2 * np.pi / period)
+    return float(np.mod(np.angle(np.mean(np.exp(1j * angles))), 2 * np.pi) * period / (2 * np.pi))
+
+
+@pytest.mark.parametrize(("hexagonal", "period"), [(False, np.pi / 2), (True, np.pi / 3)])
+def test_rotated_lattices_are_rotated_lattices(hexagonal, period):
+    from scipy.spatial import cKDTree
+
+    from data_gen.stipplers import r_max, rotated_lattice
+
+    n = 900
+    spacing = r_max(n, 1.0) if hexagonal else 1.0 / np.sqrt(n)
+    angles = []
+    for seed in range(6):
+        xy = rotated_lattice(n, hexagonal, 0.0, np.random.default_rng(seed))
+        assert abs(len(xy) - n) <= 0.05 * n and np.all((xy >= 0) & (xy < 1))
+        distances, _ = cKDTree(xy).query(xy, k=2)
+        np.testing.assert_allclose(distances[:, 1], spacing, rtol=1e-6)  # a perfect lattice without jitter
+        angles.append(lattice_angle(xy, period))
+    spread = np.ptp(np.sort(angles))
+    assert spread > 0.3 * period  # six draws are not all at one orientation (the unrotated lattice would give 0)
+    shifted = [rotated_lattice(n, hexagonal, 0.0, np.random.default_rng(seed))[:1] for seed in (0, 0)]
+    np.testing.assert_array_equal(*shifted)  # deterministic per stream
+
+
+@pytest.mark.parametrize("method", ["lattice_square", "lattice_hex", "lattice_square_jitter", "lattice_hex_jitter"])
+def test_lattice_methods_follow_the_density_and_have_measured_labels(method):
+    xy = METHODS[method](gradient(), 800, (1.0, 40 / 60), np.random.default_rng(2))
+    assert abs(len(xy) - 800) <= 0.06 * 800
+    assert np.sum(xy[:, 0] > 0.5) > 1.5 * np.sum(xy[:, 0] < 0.5)
+    assert len(LABELS[method]) == 2 and LABELS[method][1] < -30  # measured blue side (bench/stippler_labels_lattices.json)
+
+
+def test_v6_generation_config_mixes_every_source_and_keeps_the_default_key():
+    default = PairSettings.from_config(compose_config("pairs", []))
+    v6 = PairSettings.from_config(compose_config("pairs", ["generation@_global_=v6"]))
+    assert default.key() == PairSettings.from_config(compose_config("pairs", ["scale.points_per_ink=[1000,2000]"])).key()
+    assert v6.scale["share"] > 0 and v6.textures["share"] > 0 and v6.other_methods["share"] > 0
+    assert {"lattice_square", "lattice_hex", "jarvis", "bayer", "lloyd_few"} <= {k for k, w in v6.other_methods["methods"].items() if w}
+    with pytest.raises(PatternshopError, match="frozen"):
+        PairSettings.from_config(compose_config("pairs", ["generation@_global_=v6", "+other_methods.methods.capacity_voronoi=1.0"]))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES
 from patternshop.commands import check_palette_file, positive_float, positive_int, seed
 from synthesis.conventions import POINTS_PER_INK, POINTS_PER_INK_MEANING
 
@@ -52,12 +53,13 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     convert.add_argument("--bits", type=int, choices=(8, 16), default=16, help="bits per sample of the output TIFFs (default 16)")
     convert.add_argument("--overwrite", action="store_true", help="replace existing outputs instead of skipping their inputs")
     convert.add_argument("--no-progress", action="store_true", help="no progress bar")
-    convert.add_argument("--symmetries", type=int, choices=(1, 4, 8), default=1,
-                         help="average each file's network readings over this many symmetries of the square (default 1, for "
-                         "throughput; 8 reads as infer does, at 8 times the network time)")
+    convert.add_argument("--symmetries", type=int, choices=SYMMETRY_CHOICES, default=DEFAULT_INFER.convert_symmetries,
+                         help="average each file's network readings over this many symmetries of the square, one network "
+                         f"pass each (default {DEFAULT_INFER.convert_symmetries}, for throughput; 8 reads as infer does for "
+                         "a model without l_scale)")
     convert.add_argument("--no-denoise", action="store_true",
-                         help="keep L's fine detail even where it is only noise, about twice as fast (default: L smoothed "
-                         "where its detail is noise, as infer does, from two more network readings per file)")
+                         help="keep L's fine detail even where it is only noise (default: L smoothed as infer does; for a "
+                         "model without l_scale from two more network readings per file, about twice the time)")
     convert.add_argument("--points-per-ink", type=positive_float, metavar="K",
                          help=f"{POINTS_PER_INK_MEANING}: the scale point files are read at (default: per file as infer "
                          f"does, the header's '# points_per_ink:', else {POINTS_PER_INK} unless the pattern is denser), and maps synthesised at with "

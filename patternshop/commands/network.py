@@ -8,6 +8,7 @@ import sys
 
 from patternshop.commands import (add_threads_option, check_map_output, check_memory, check_output, check_point_file,
                                   non_negative_int, positive_float, positive_int)
+from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES
 from synthesis.conventions import POINTS_PER_INK, POINTS_PER_INK_MEANING
 from synthesis.resources import export_check_bytes, inference_bytes
 
@@ -24,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         "points; without --points-per-ink, the '# points_per_ink:' the file's header records (synthesize writes it into "
         ".txt files), else 50,000 unless the pattern is denser somewhere, then the scale at which its "
         "densest 1% reads as full ink: the chosen scale is printed) and rasterised so that its points per pixel match "
-        "the network's training, mirrored 32 raster pixels beyond the domain's border. The ink is then scaled so that "
+        f"the network's training, mirrored {DEFAULT_INFER.border_px} raster pixels beyond the domain's border. The ink is then scaled so that "
         "the map holds the pattern's point count (an empty pattern gives a white map). Where the points are regular "
         "(blue noise, Lloyd, dithering: their nearest neighbours farther apart than a Poisson pattern's), L is sharpened from "
         "the points themselves, whose fine counts are nearly noise-free there; Poisson and clustered areas keep the "
@@ -34,6 +35,8 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         "take a,b from readings at 2, 4 ... 64 times fewer points per ink, where the network sees their "
         "arrangement at a density it reads correlation at; where even then too few points show correlation, a,b are "
         "filled from the surrounding well-observed correlation and the report says how much of the map that is. "
+        "A model that predicts its uncertainty of L (an 'l_scale' output) needs none of this: L is smoothed only "
+        "as far as that uncertainty allows, from one network pass per symmetry. "
         "A non-square domain lies on a square raster and the output is cropped back, so the map keeps the domain's "
         "aspect, 256 px on its long side unless --width is given.",
     )
@@ -51,20 +54,23 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        "than that)")
     infer.add_argument("--no-fill", action="store_true",
                        help="keep the network's a,b: no zoomed reading of light areas, no fill where too few points show "
-                       "correlation or the map holds no ink (default: both)")
+                       "correlation or the map holds no ink (default: both, for a model without l_scale)")
     infer.add_argument("--no-calibrate", action="store_true",
                        help="keep the network's L (default: ink scaled so that the map holds the pattern's point count; "
                        "implies --no-sharpen and --no-denoise)")
     infer.add_argument("--no-sharpen", action="store_true",
-                       help="keep the network's L where the points are regular too (default: L sharpened there from a "
-                       "density estimate of the points about one point spacing wide, guided by the network's L)")
+                       help="keep the network's L where the points are regular too (default for a model without l_scale: L "
+                       "sharpened there from a density estimate of the points about one point spacing wide, guided by the "
+                       "network's L)")
     infer.add_argument("--no-denoise", action="store_true",
                        help="keep L's fine detail even where it is only noise (default: L smoothed, from 1 px up to 1/16 of the "
-                       "map, where the detail is no larger than a Poisson pattern of the same density shows through the "
-                       "network; 2 more readings)")
-    infer.add_argument("--symmetries", type=int, choices=(1, 4, 8), default=8,
-                       help="average the network's readings over this many symmetries of the square: 8 (default) flips and "
-                       "transposes, 4 flips only, 1 a single run (8 times faster)")
+                       "map, as far as the model's predicted uncertainty of L allows, or, for a model without l_scale, where "
+                       "the detail is no larger than a Poisson pattern of the same density shows through the network: 2 more "
+                       "readings)")
+    infer.add_argument("--symmetries", type=int, choices=SYMMETRY_CHOICES,
+                       help="average the network's readings over this many symmetries of the square, one network pass each: "
+                       f"8 flips and transposes, 4 flips, 2, 1 a single run (default: {DEFAULT_INFER.symmetries} for a model "
+                       "with l_scale, 8 for one without)")
     infer.add_argument("--report", metavar="JSON", help="write a JSON report (points per ink chosen, evidence shares, ...)")
     add_threads_option(infer)
     infer.set_defaults(func=run_infer)
@@ -108,7 +114,7 @@ def run_infer(args: argparse.Namespace) -> None:
     width = map_width(points.domain, model, args.width)
     check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
                  f"inferring a {width} px wide map from a {side}x{side} px raster ({scale.points_per_ink:g} points per ink)")
-    inference = api.infer(points, model=model, points_per_ink=args.points_per_ink, width=args.width, fill=not args.no_fill,
+    inference = api.infer(points, model=model, points_per_ink=scale, width=args.width, fill=not args.no_fill,
                           calibrate=not args.no_calibrate, symmetries=args.symmetries, sharpen=not args.no_sharpen,
                           denoise=not args.no_denoise)
     report = {"points": args.points, "n": len(points), "model": str(model.path), "output": str(output), **inference.report()}
@@ -128,12 +134,13 @@ def run_infer(args: argparse.Namespace) -> None:
     if inference.sharpened_share > 0:
         print(f"L of {100 * inference.sharpened_share:.1f}% of the map sharpened from its regular points", file=sys.stderr)
     if inference.denoised_px > 0:
-        print(f"L smoothed where its detail is noise: {inference.denoised_px:.1f} px wide on average", file=sys.stderr)
+        where = "where its detail is noise" if inference.l_scale is None else "within the network's predicted uncertainty"
+        print(f"L smoothed {where}: {inference.denoised_px:.1f} px wide on average", file=sys.stderr)
     if inference.zoomed_share > 0:
         zooms = ", ".join(f"{zoom}x" for zoom in inference.zooms[1:])
         print(f"a,b of {100 * inference.zoomed_share:.1f}% of the map (its light areas) read at fewer points per ink ({zooms})",
               file=sys.stderr)
-    if evidence.thin_share > 0:
+    if evidence is not None and evidence.thin_share > 0:
         action = "filled from the surrounding correlation" if evidence.filled else "left as the network gave them"
         print(f"{100 * evidence.thin_share:.1f}% of the map has too few points to show correlation; its a,b were {action}",
               file=sys.stderr)

@@ -1,0 +1,200 @@
+"""A trainable generator rebuilt from an exported ONNX model, to fine-tune a model whose checkpoint is gone.
+
+``python -m patternshop_nn.onnx_import MODEL.onnx OUT.ckpt --pairs PAIR_DIR [--l-scale]`` writes a checkpoint that
+``train.py init_from=OUT.ckpt`` starts from (the shipped model v5 exists only as ``default.onnx``).
+
+The exporter (:mod:`patternshop_nn.onnx_export`) changed the weights' form but not the function, so each layer is
+read back and inverted:
+
+* the encoder's convolution + batch norm pairs were folded by the ONNX exporter into one convolution (weight ``Wf``,
+  bias ``bf``): the convolution takes ``Wf``, the batch norm ``gamma = s``, ``beta = bf + m``, running mean ``m`` and
+  variance ``s^2`` (minus its eps), where ``m``, ``s`` are the per-channel mean and standard deviation of ``Wf * x`` on
+  calibration rasters (``rasters``; without them 0 and 1). The function in eval mode is exactly the exported one either
+  way; with the statistics, training mode's batch statistics give about the same function too;
+* every fused up-sampling convolution (:class:`patternshop_nn.networks.NearestUpConv`, four 2x2 phase kernels, 16
+  sums of the 9 taps of the 3x3 kernel) is solved back to its 3x3 kernel by least squares (exact: the sums are
+  consistent), its bias is every fourth of the exported one;
+* the decoders' batch norms and the other convolutions are copied.
+
+With ``l_scale=True`` the generator gets the Laplace-scale head, initialised as new layers are
+(:func:`patternshop_nn.networks.init_weights`) with its bias such that the scale starts at about ``initial_scale``.
+The discriminator is not exported: it starts fresh.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from patternshop_nn.networks import L_SCALE_MIN, DualBranchUNet, init_weights
+from synthesis.errors import PatternshopError
+
+INITIAL_SCALE = 0.05  # the new l_scale head's starting scale (L/100): about the shipped model's held-out density MAE
+
+
+def _taps_matrix() -> np.ndarray:
+    """(16, 9) matrix taking a 3x3 kernel (row-major) to NearestUpConv's four 2x2 phase kernels (phase-major, row-major)."""
+    groups = ([[0], [1, 2]], [[0, 1], [2]])  # rows (or columns) of the 3x3 kernel summed into each 2x2 tap, by phase
+    matrix = np.zeros((16, 9))
+    for phase_row in (0, 1):
+        for phase_col in (0, 1):
+            for r in (0, 1):
+                for c in (0, 1):
+                    out = (2 * phase_row + phase_col) * 4 + 2 * r + c
+                    for i in groups[phase_row][r]:
+                        for j in groups[phase_col][c]:
+                            matrix[out, 3 * i + j] = 1.0
+    return matrix
+
+
+def unfuse_kernel(weight: np.ndarray) -> np.ndarray:
+    """(Cout, Cin, 3, 3) kernel whose :class:`~patternshop_nn.networks.NearestUpConv` weights are ``weight`` (4 Cout, Cin, 2, 2)."""
+    cout4, cin = weight.shape[:2]
+    phases = weight.reshape(cout4 // 4, 4, cin, 4).transpose(0, 2, 1, 3).reshape(cout4 // 4, cin, 16)
+    taps = phases @ np.linalg.pinv(_taps_matrix()).T  # (Cout, Cin, 9)
+    return taps.reshape(cout4 // 4, cin, 3, 3)
+
+
+def _onnx_layers(path: Path) -> tuple[dict[str, np.ndarray], list[tuple[str, str | None]]]:
+    """(initialisers by name, (weight, bias) names of the Conv nodes in graph order)."""
+    import onnx
+    from onnx import numpy_helper
+
+    try:
+        model = onnx.load(str(path))
+    except Exception as exc:  # onnx raises DecodeError and others for a file that is not a model
+        raise PatternshopError(f"{path}: not a readable ONNX model ({type(exc).__name__})") from exc
+    arrays = {init.name: numpy_helper.to_array(init) for init in model.graph.initializer}
+    for node in model.graph.node:  # the exporter shares equal initialisers through Identity nodes (and folds constants)
+        if node.op_type == "Identity" and node.input[0] in arrays:
+            arrays[node.output[0]] = arrays[node.input[0]]
+        elif node.op_type == "Constant" and node.attribute and node.attribute[0].name == "value":
+            arrays[node.output[0]] = numpy_helper.to_array(node.attribute[0].t)
+    convs = [(node.input[1], node.input[2] if len(node.input) > 2 else None) for node in model.graph.node if node.op_type == "Conv"]
+    return arrays, convs
+
+
+def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 12, max_channels: int = 96,
+                        l_scale: bool = False, initial_scale: float = INITIAL_SCALE) -> DualBranchUNet:
+    """A nearest-upsampling :class:`DualBranchUNet` whose eval-mode function is the exported model's (see module docstring).
+
+    Raises:
+        PatternshopError: the file is not an exported generator of this architecture.
+    """
+    path = Path(path)
+    arrays, convs = _onnx_layers(path)
+    generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale).eval()
+    init_weights(generator)
+    state = generator.state_dict()
+    new: dict[str, torch.Tensor] = {}
+    try:
+        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation."))]
+        if len(encoder) != levels:
+            raise KeyError(f"{len(encoder)} encoder convolutions, expected {levels}")
+        for k, (weight, bias) in enumerate(encoder):
+            prefix = "first" if k == 0 else f"downs.{k - 1}.1"
+            new[f"{prefix}.weight"] = torch.from_numpy(arrays[weight].copy())
+            if f"{prefix}.bias" in state:  # no batch norm after it: copied as is
+                new[f"{prefix}.bias"] = torch.from_numpy(arrays[bias].copy())
+            else:  # folded batch norm: identity statistics, the folded bias as its shift (calibrate_folded_norms refines)
+                norm = f"downs.{k - 1}.2"
+                channels = arrays[weight].shape[0]
+                eps = generator.downs[k - 1][2].eps
+                new.update({f"{norm}.weight": torch.ones(channels), f"{norm}.bias": torch.from_numpy(arrays[bias].copy()),
+                            f"{norm}.running_mean": torch.zeros(channels), f"{norm}.running_var": torch.full((channels,), 1.0 - eps)})
+        for branch in ("density", "correlation"):
+            for k in range(levels - 1):
+                for field in ("weight", "bias", "running_mean", "running_var"):
+                    new[f"{branch}.ups.{k}.3.{field}"] = torch.from_numpy(arrays[f"{branch}.ups.{k}.3.{field}"].copy())
+                new[f"{branch}.ups.{k}.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.ups.{k}.1.weight"]).astype(np.float32))
+            new[f"{branch}.head.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.head.1.weight"]).astype(np.float32))
+            new[f"{branch}.head.2.bias"] = torch.from_numpy(arrays[f"{branch}.head.1.bias"][::4].copy())
+        if l_scale:  # the new head: its initial weights, a bias at softplus^-1 of the starting scale
+            new.update({name: value for name, value in state.items() if name.startswith("scale.")})
+            new["scale.2.bias"] = torch.full((1,), float(np.log(np.expm1(initial_scale - L_SCALE_MIN))))
+        generator.load_state_dict(new, strict=True)
+    except (KeyError, RuntimeError, ValueError) as exc:
+        reason = str(exc).strip().splitlines()[0][:200]
+        raise PatternshopError(f"{path}: not an exported generator with levels={levels}, base_channels={base_channels}, "
+                               f"max_channels={max_channels} and nearest up-sampling ({reason})") from exc
+    return generator
+
+
+def calibrate_folded_norms(generator: DualBranchUNet, rasters: torch.Tensor) -> None:
+    """Give the folded batch norms (those with identity statistics) the statistics of their input on ``rasters``
+    (B, 1, S, S) without changing the eval-mode function (module docstring)."""
+    norms = [down[2] for down in generator.downs if len(down) > 2 and isinstance(down[2], nn.BatchNorm2d)]
+    folded = [norm for norm in norms if torch.all(norm.weight == 1) and torch.all(norm.running_mean == 0)]
+    captured: dict[int, torch.Tensor] = {}
+    hooks = [norm.register_forward_hook(lambda module, inputs, output, key=id(norm): captured.__setitem__(key, inputs[0]))
+             for norm in folded]
+    try:
+        with torch.no_grad():
+            generator.eval()(rasters)
+    finally:
+        for hook in hooks:
+            hook.remove()
+    with torch.no_grad():
+        for norm in folded:
+            values = captured[id(norm)]
+            mean, std = values.mean(dim=(0, 2, 3)), values.std(dim=(0, 2, 3)).clamp_min(1e-3)
+            norm.running_mean.copy_(mean)
+            norm.running_var.copy_(std**2 - norm.eps)
+            norm.weight.copy_(std)
+            norm.bias.add_(mean)
+
+
+def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: torch.Tensor | None = None,
+                         **model_kwargs: object) -> Path:
+    """Write a checkpoint for ``train.py init_from=`` (a :class:`~patternshop_nn.module.Pix2PixModule` state dict with the
+    rebuilt generator and a fresh discriminator); ``model_kwargs`` are the module's (levels, base_channels,
+    max_channels, l_scale ...; upsample is "nearest")."""
+    import lightning
+
+    from patternshop_nn.module import Pix2PixModule
+
+    module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest"})
+    hp = module.hparams
+    generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, bool(hp.get("l_scale", False)))
+    if rasters is not None:
+        calibrate_folded_norms(generator, rasters)
+    module.generator.load_state_dict(generator.state_dict())
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(hp), "pytorch-lightning_version": lightning.__version__,
+                "rebuilt_from_onnx": str(onnx_path)}, out_path)
+    return out_path
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: see module docstring; errors are one line on stderr (exit 2)."""
+    parser = argparse.ArgumentParser(prog="python -m patternshop_nn.onnx_import", description=__doc__.splitlines()[0])
+    parser.add_argument("model", help="exported .onnx generator")
+    parser.add_argument("out", help="checkpoint to write")
+    parser.add_argument("--pairs", help="pair folder whose first rasters calibrate the folded batch norms")
+    parser.add_argument("--calibration-items", type=int, default=64)
+    parser.add_argument("--l-scale", action="store_true", help="add the uncertainty head (Laplace scale of L)")
+    parser.add_argument("--l-nll-weight", type=float, default=1.0)
+    args = parser.parse_args(argv)
+    try:
+        rasters = None
+        if args.pairs:
+            from data_gen.shards import load_pairs
+
+            pairs = load_pairs(args.pairs)
+            rasters = torch.from_numpy(pairs.raster[: args.calibration_items].astype(np.float32))[:, None]
+        path = checkpoint_from_onnx(args.model, args.out, rasters, l_scale=args.l_scale, l_nll_weight=args.l_nll_weight)
+    except (PatternshopError, OSError) as exc:
+        print(f"onnx_import: error: {exc}", file=sys.stderr)
+        return 2
+    print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
