@@ -10,10 +10,20 @@ domain) and ``R`` the target's regularity per cell (1 for a hard core, 0 for Poi
 clustered targets, whose density varies on this scale by design;
 :func:`synthesis.edgepcf.regularity`):
 
-    L = weight * mean_cells (G (R (c - t)))^2 / v,    v = mean(t) / (4 pi sx sy)
+    L = weight * sum_cells (G (R (c - t)))^2 / (Gh Gw v),    v = mean(t) / (4 pi sx sy)
 
 ``v`` is the variance of a blurred Poisson count at the mean density (``sx, sy``: the blur
-in cells), so a Poisson pattern on a regular map scores about ``weight``. Its gradient is
+in cells), so a Poisson pattern on a regular map scores about ``weight``.
+
+**Border.** The grid has one more cell (:data:`PAD`) beyond each side of the domain, so every point has its full tent:
+with the tents clamped to the outer cells, a point within half a cell of the border counted wholly at the outer cell's
+centre and felt no force across the border there; points entered that band when the outer cells lacked ink and never
+left when they had too much (the tone term alone on a true blue sample, 4,096 points, 150 iterations: 1.37 of the
+expected density within 0.25 r_max of the border, 0.63 at 0.5-0.75; step's whole run, 3 seeds: 1.89 / 0.84 / 0.47 in
+the first 0.25 r_max strips, 1.04 / 1.27 / 0.90 with the pad). ``t`` is accordingly the
+map's ink per cell filtered by the tent, ``[1/8, 3/4, 1/8]`` per axis (the counts a pattern of the map's density is
+expected to splat; padding cells get the ink of their inner neighbour's outer half); the pad cells' regularity is
+their neighbour's. Its gradient is
 the bilinear gradient at each point of ``u = 2 weight / (cells v) R G G R (c - t)``
 (``G`` is symmetric, zero padding included). :class:`DensityTerm` computes both, with
 numba kernels for the splat and the gather (:mod:`synthesis.fields_fast`) and
@@ -25,7 +35,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
+from scipy.ndimage import correlate1d, gaussian_filter
 
 from synthesis.fields import MapFields, _area_matrix, sample_grid
 from synthesis.labmap import LabMap
@@ -34,15 +44,18 @@ BLUR_CELLS = 3.0  # the blur's standard deviation in grid cells (cells of ``scal
 # blurred by 3 cells has no aliasing left to speak of, and coarser cells cost less: 1M points, 1000^2 cells)
 MAX_CELLS = 2048  # per side
 TRUNCATE = 3.0  # the blur's reach, in its standard deviations
+PAD = 1  # cells beyond each side of the domain (see the module docstring, "Border")
+TENT = np.array([0.125, 0.75, 0.125])  # a cell's share of its tent's mass per axis: its own and its neighbours'
 
 
 class DensityTerm:
     """The tone term of one map for n points (see the module docstring).
 
     Attributes:
-        shape: (Gh, Gw) cells; ``cell``: (cw, ch) their size in map units.
-        target: (Gh, Gw) float64 the map's ink per cell, summing to n.
-        mask: (Gh, Gw) float64 the target's regularity per cell, in [0, 1].
+        shape: (Gh + 2 PAD, Gw + 2 PAD) cells, :data:`PAD` beyond each side of the domain's Gh x Gw; ``cell``: (cw, ch)
+            their size in map units; ``cells``: Gh Gw.
+        target: the map's ink per cell filtered by the tent (:data:`TENT`), summing to n.
+        mask: the target's regularity per cell, in [0, 1].
         sigma: (sy, sx) the blur in cells.
         weight: the term's weight; ``variance``: v.
     """
@@ -67,6 +80,11 @@ class DensityTerm:
         self.sigma = (scale * spacing / self.cell[1], scale * spacing / self.cell[0])
         self.weight = float(weight)
         self.variance = max(float(self.target.mean()), 1e-12) / (4.0 * math.pi * self.sigma[0] * self.sigma[1])
+        self.cells = gh * gw
+        self.target = correlate1d(correlate1d(np.pad(self.target, PAD), TENT, axis=0, mode="constant"), TENT, axis=1,
+                                  mode="constant")
+        self.mask = np.pad(self.mask, PAD, mode="edge")
+        self.shape = self.target.shape
         self.active = self.weight > 0 and bool(self.mask.max() > 0)
 
     def _blur(self, values: np.ndarray) -> np.ndarray:
@@ -75,8 +93,8 @@ class DensityTerm:
     def _adjoint(self, counts: np.ndarray) -> tuple[float, np.ndarray]:
         """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell."""
         blurred = self._blur(self.mask * (counts - self.target))
-        size = blurred.size
-        loss = self.weight * float(np.mean(blurred * blurred)) / self.variance
+        size = self.cells
+        loss = self.weight * float(np.vdot(blurred, blurred)) / (size * self.variance)
         return loss, (2.0 * self.weight / (size * self.variance)) * self.mask * self._blur(blurred)
 
     def __call__(self, xy: np.ndarray, gradient: np.ndarray | None = None) -> float:
@@ -84,16 +102,16 @@ class DensityTerm:
         from synthesis.fields_fast import bilinear_gradient, bilinear_splat
 
         counts = np.zeros(self.shape)
-        bilinear_splat(xy, 1.0 / self.cell[0], 1.0 / self.cell[1], counts)
+        bilinear_splat(xy, 1.0 / self.cell[0], 1.0 / self.cell[1], counts, PAD)
         loss, u = self._adjoint(counts)
         if gradient is not None:
-            bilinear_gradient(xy, 1.0 / self.cell[0], 1.0 / self.cell[1], u, gradient)
+            bilinear_gradient(xy, 1.0 / self.cell[0], 1.0 / self.cell[1], u, gradient, PAD)
         return loss
 
     def _corners(self, xy: np.ndarray):
         gh, gw = self.shape
-        u = np.asarray(xy)[:, 0] / self.cell[0] - 0.5
-        v = np.asarray(xy)[:, 1] / self.cell[1] - 0.5
+        u = np.asarray(xy)[:, 0] / self.cell[0] - 0.5 + PAD
+        v = np.asarray(xy)[:, 1] / self.cell[1] - 0.5 + PAD
         j0, i0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
         fu, fv = u - j0, v - i0
         return (np.clip(i0, 0, gh - 1), np.clip(i0 + 1, 0, gh - 1), np.clip(j0, 0, gw - 1), np.clip(j0 + 1, 0, gw - 1),

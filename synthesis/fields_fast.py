@@ -100,9 +100,10 @@ def ring_means(intensity, latent_a, latent_b, px0, py0, spacing_px, centre_a, ce
 
 
 @numba.njit(cache=True)
-def _tent(x, inv_cell, size):  # pragma: no cover - jitted
-    """Tent stencil of coordinate x on cells of 1 / inv_cell: lower and upper cell (clamped to 0..size-1), upper weight."""
-    u = x * inv_cell - 0.5
+def _tent(x, inv_cell, size, pad):  # pragma: no cover - jitted
+    """Tent stencil of coordinate x on cells of 1 / inv_cell, ``pad`` of them before the origin: lower and upper cell
+    (clamped to 0..size-1), upper weight."""
+    u = x * inv_cell - 0.5 + pad
     k = math.floor(u)
     f = u - k
     k = int(k)
@@ -110,14 +111,14 @@ def _tent(x, inv_cell, size):  # pragma: no cover - jitted
 
 
 @numba.njit(cache=True)
-def bilinear_splat(xy, inv_cw, inv_ch, counts):  # pragma: no cover - jitted
+def bilinear_splat(xy, inv_cw, inv_ch, counts, pad):  # pragma: no cover - jitted
     """Add the tent (bilinear) counts of points xy (n, 2) into counts (Gh, Gw), cells 1 / inv_cw x 1 / inv_ch wide from
-    the origin (mass beyond the outer cell centres stays in the outer cells). Reference:
+    ``pad`` cells before the origin (mass beyond the outer cell centres stays in the outer cells). Reference:
     :meth:`synthesis.density_term.DensityTerm.counts_reference`."""
     gh, gw = counts.shape
     for i in range(len(xy)):
-        j0, j1, fu = _tent(xy[i, 0], inv_cw, gw)
-        i0, i1, fv = _tent(xy[i, 1], inv_ch, gh)
+        j0, j1, fu = _tent(xy[i, 0], inv_cw, gw, pad)
+        i0, i1, fv = _tent(xy[i, 1], inv_ch, gh, pad)
         counts[i0, j0] += (1.0 - fv) * (1.0 - fu)
         counts[i0, j1] += (1.0 - fv) * fu
         counts[i1, j0] += fv * (1.0 - fu)
@@ -125,12 +126,12 @@ def bilinear_splat(xy, inv_cw, inv_ch, counts):  # pragma: no cover - jitted
 
 
 @numba.njit(parallel=True, cache=True)
-def bilinear_gradient(xy, inv_cw, inv_ch, u, out):  # pragma: no cover - jitted
+def bilinear_gradient(xy, inv_cw, inv_ch, u, out, pad):  # pragma: no cover - jitted
     """Add into out (n, 2) the gradient at points xy (n, 2) of the tent interpolant of u (Gh, Gw) (the splat's adjoint,
-    :func:`bilinear_splat`'s cells). Reference: :meth:`synthesis.density_term.DensityTerm.reference`."""
+    :func:`bilinear_splat`'s cells, ``pad`` before the origin). Reference: :meth:`synthesis.density_term.DensityTerm.reference`."""
     gh, gw = u.shape
     for i in numba.prange(len(xy)):
-        j0, j1, fu = _tent(xy[i, 0], inv_cw, gw)
-        i0, i1, fv = _tent(xy[i, 1], inv_ch, gh)
+        j0, j1, fu = _tent(xy[i, 0], inv_cw, gw, pad)
+        i0, i1, fv = _tent(xy[i, 1], inv_ch, gh, pad)
         out[i, 0] += ((1.0 - fv) * (u[i0, j1] - u[i0, j0]) + fv * (u[i1, j1] - u[i1, j0])) * inv_cw
         out[i, 1] += ((1.0 - fu) * (u[i1, j0] - u[i0, j0]) + fu * (u[i1, j1] - u[i0, j1])) * inv_ch

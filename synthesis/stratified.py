@@ -11,6 +11,7 @@ start). Both return (n, 2) float64 positions in ``[0, w] x [0, h]``.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 
@@ -38,6 +39,33 @@ def hilbert_index(order: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return d
 
 
+@lru_cache(maxsize=2)
+def hilbert_cells(order: int) -> np.ndarray:
+    """(4^order,) int64 cells ``row x 2^order + column`` of a 2^order grid in their order along the Hilbert curve.
+
+    The inverse of :func:`hilbert_index` (equal to ``argsort`` of it over every cell, without the sort), computed once
+    per order: the start's sampler and the window sampler use the same grid (at 100k points, 2^10 a side).
+    """
+    side = 1 << order
+    t = np.arange(side * side, dtype=np.int64)
+    x, y = np.zeros_like(t), np.zeros_like(t)
+    s = 1
+    while s < side:
+        rx = 1 & (t >> 1)
+        ry = 1 & (t ^ rx)
+        flip = (ry == 0) & (rx == 1)
+        x[flip], y[flip] = s - 1 - x[flip], s - 1 - y[flip]
+        swap = ry == 0
+        x[swap], y[swap] = y[swap], x[swap]
+        x += s * rx
+        y += s * ry
+        t >>= 2
+        s <<= 1
+    cells = y * side + x
+    cells.flags.writeable = False  # shared by every caller
+    return cells
+
+
 def spatial_order(xy: np.ndarray, domain: tuple[float, float], order: int = 10) -> np.ndarray:
     """(n,) permutation sorting points (n, 2) in ``[0, w] x [0, h]`` along a Hilbert curve of 2^order cells per side.
 
@@ -48,22 +76,23 @@ def spatial_order(xy: np.ndarray, domain: tuple[float, float], order: int = 10) 
     return np.argsort(hilbert_index(order, cells[:, 0], cells[:, 1]), kind="stable")
 
 
-def _cell_grid(density: np.ndarray, side_px: int, domain: tuple[float, float], n: int) -> tuple[int, np.ndarray]:
-    """Order of a 2^order grid over the unit square and its cells' mass (2^order, 2^order): density x the cell's share
-    inside the domain (0 outside it)."""
+def _cell_grid(density: np.ndarray, side_px: int, domain: tuple[float, float], n: int,
+               extent: float = 1.0) -> tuple[int, np.ndarray]:
+    """Order of a 2^order grid over the square ``[0, extent]^2`` (extent >= 1, the unit square's side) and its cells'
+    mass (2^order, 2^order): density x the cell's share inside the domain (0 outside it)."""
     peak = float(density.max()) / max(float(density.mean()), 1e-12)
     area = domain[0] * domain[1]
-    wanted = CELLS_PER_POINT * n * peak / area
+    wanted = CELLS_PER_POINT * n * peak / area  # the same order for any extent (the window sampler shares its curve)
     order = min(MAX_ORDER, max(4, math.ceil(0.5 * math.log2(max(wanted, 1.0)))))
     side = 1 << order
-    corners = np.arange(side) / side
+    corners = np.arange(side) / side * extent
     cx, cy = np.meshgrid(corners, corners, indexing="xy")
     # cells straddling the domain's edge count by their share inside it, sampled at their inside part's centre: a
     # domain thinner than a cell (a 1 x 10000 px map) still has mass (before, no centre was inside and every point
     # went to one corner)
     lo = np.stack([cx.reshape(-1), cy.reshape(-1)], axis=1)
-    hi = np.minimum(lo + 1.0 / side, np.asarray(domain, np.float64))
-    share = np.prod(np.clip(hi - lo, 0.0, None), axis=1) * side * side
+    hi = np.minimum(lo + extent / side, np.asarray(domain, np.float64))
+    share = np.prod(np.clip(hi - lo, 0.0, None), axis=1) * (side / extent) ** 2
     values = sample_grid(density[..., None].astype(np.float64), 0.5 * (lo + np.maximum(hi, lo)), side_px)[:, 0]
     return order, (np.maximum(values, 0.0) * share).reshape(side, side)
 
@@ -73,13 +102,22 @@ class StratifiedSampler:
 
     The cell grid is sized for up to ``n`` points; the curve and the cumulative
     mass are computed once, so repeated draws cost O(count log cells).
+
+    With ``rng``, the grid spans a square 1-2 times the map's side (random; the cells beyond the domain hold no mass;
+    at least 1 cell per point instead of 4).
+    Over the map itself, a stratum of a uniform square map of 4^k points is a block of the grid's cells, the start a
+    jittered square grid, and the leashed optimisation turned it into a square lattice (blue, 4,096 points: rows of
+    points parallel to the border, strips 0.54-1.49 of the expected density up to the map's centre); a random extent
+    makes the strata's shapes vary. (Jittering each point over two strata instead broke the lattice but left the
+    start's holes 13 % wider and the result 3 % of its points closer than 0.7 r_max, against 1-2 %.)
     """
 
-    def __init__(self, density: np.ndarray, side_px: int, domain: tuple[float, float], n: int):
-        order, cells = _cell_grid(density, side_px, domain, n)
+    def __init__(self, density: np.ndarray, side_px: int, domain: tuple[float, float], n: int,
+                 rng: np.random.Generator | None = None):
+        self.extent = 1.0 if rng is None else 1.0 + float(rng.random())
+        order, cells = _cell_grid(density, side_px, domain, n, self.extent)
         self.side, self.domain = 1 << order, domain
-        ys, xs = np.divmod(np.arange(self.side * self.side), self.side)
-        self.along = np.argsort(hilbert_index(order, xs, ys))
+        self.along = hilbert_cells(order)
         self.mass = np.cumsum(cells.reshape(-1)[self.along])
 
     def draw(self, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -87,8 +125,8 @@ class StratifiedSampler:
         strata = (np.arange(count) + rng.random(count)) / count * self.mass[-1]
         cell = self.along[np.minimum(np.searchsorted(self.mass, strata, side="right"), len(self.along) - 1)]
         row, col = np.divmod(cell, self.side)
-        lo = np.stack([col, row], axis=1) / self.side
-        extent = np.minimum(lo + 1.0 / self.side, np.asarray(self.domain)) - lo  # the cell's part inside the domain
+        lo = np.stack([col, row], axis=1) * (self.extent / self.side)
+        extent = np.minimum(lo + self.extent / self.side, np.asarray(self.domain)) - lo  # the cell's part inside the domain
         return np.minimum(lo + rng.random((count, 2)) * extent, np.array(self.domain) * (1 - 1e-9))
 
 

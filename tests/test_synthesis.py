@@ -176,7 +176,9 @@ def test_tone_term_acts_only_where_the_target_is_regular():
     half = term.shape[1] // 2
     assert term.mask[:, : half - 1].min() > 0.9 and term.mask[:, half + 1 :].max() < 0.05
     assert term.target.sum() == pytest.approx(800)
-    assert term.target[:, half + 1 :].mean() == pytest.approx(3.0 * term.target[:, : half - 1].mean(), rel=0.02)  # L 40 | 80
+    inner = term.target[2:-2]  # away from the pad cells (a tent's share of the domain's ink) ...
+    assert inner[:, half + 1 : -2].mean() == pytest.approx(3.0 * inner[:, 2 : half - 1].mean(), rel=0.02)  # L 40 | 80
+    assert term.target[0, 2:-2].mean() == pytest.approx(0.125 * inner[:, 2:-2].mean(), rel=0.1)  # ... 1/8 of a cell's
 
 
 def test_photo_like_map_keeps_its_tone_better_than_weighted_lloyd():
@@ -226,6 +228,20 @@ def test_stratified_start_matches_density_and_has_no_holes():
     independent = random_points(density, 64, (1.0, 0.5), 2000, np.random.default_rng(0))
     grid = np.stack(np.meshgrid(np.linspace(0.01, 0.49, 40), np.linspace(0.01, 0.49, 20)), -1).reshape(-1, 2)
     assert cKDTree(xy).query(grid)[0].max() < 0.7 * cKDTree(independent).query(grid)[0].max()
+
+
+def test_stratified_start_is_no_lattice():
+    """A uniform square of 4^k points: over the map alone, a stratum of the curve is a block of its grid and the start
+    one point per block (a jittered square grid), which the optimisation turned into a lattice (rows parallel to the
+    border); with a random extent (``rng``) it is not, and the start still has the stratified start's holes."""
+    grid = np.stack(np.meshgrid(np.linspace(0.01, 0.99, 50), np.linspace(0.01, 0.99, 50)), -1).reshape(-1, 2)
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        xy = StratifiedSampler(np.ones((64, 64)), 64, (1.0, 1.0), 4096, rng).draw(4096, rng)
+        per_block = np.bincount((xy[:, 1] * 64).astype(int) * 64 + (xy[:, 0] * 64).astype(int), minlength=4096)
+        assert np.mean(per_block == 1) < 0.8  # one stratum per block: 1.0 (independent points: 0.37)
+        independent = random_points(np.ones((64, 64)), 64, (1.0, 1.0), 4096, rng)
+        assert cKDTree(xy).query(grid)[0].max() < 0.85 * cKDTree(independent).query(grid)[0].max()
 
 
 def test_reflect_mirrors_positions_into_the_domain():
