@@ -15,11 +15,12 @@ measured in units of the local spacing r_max(x), so dense and sparse regions
 converge alike; they decay from ``step`` to ``final_step`` along a cosine, are
 ``free_step`` times longer where the target is not regular (clusters must
 form from an independent start) and shrink to 0 where the target is white
-noise (the independent start already is a true sample). Pair lists, windows
+noise (the independent start already is a true sample; where that is every
+point, the run stops at once). Pair lists, windows
 and the fields at the points are refreshed every ``refresh`` iterations at
 the initial step, less often as the step decays (whenever the points could
-have moved as far as in ``refresh`` initial steps: 15 refreshes in 250
-iterations instead of 25).
+have moved as far as in ``refresh`` initial steps: 5 refreshes in 180
+iterations; the leash bounds what a stale pair list can miss).
 Points leaving the domain are mirrored back in, momentum reversed (a border is
 a mirror, not a wall that collects points); so are points landing where the
 map has no ink, at the edge of the nearest inked pixel
@@ -43,9 +44,16 @@ points' density blurred at that scale to the map's: camera at 20k points,
 with the constant-map statistics of blue unchanged (a blur of 1-1.5 spacings
 made blue more regular than its generator: fine-PCF ratio 1.4-2.4).
 
-One schedule, ``fast`` (:data:`SCHEDULES`: 250 iterations, steps 0.05 -> 0.01
-spacings, free_step 3, leash 0.7 spacings, tone 1e4 at 3 spacings). Unlike the paper's 5,000 iterations
-on jittered Monte-Carlo centres, every point is a centre at every iteration.
+**Warm start.** ``start_points`` replaces the density-matched start (an edit: :func:`redrawn_start` keeps a
+previous result outside the edited region and re-draws inside); the run is the same schedule: a re-drawn region is a
+fresh start and needs all of it (measured), while converged points barely move.
+
+One schedule, ``fast`` (:data:`SCHEDULES`: 180 iterations, steps 0.1 -> 0.01
+spacings, refresh 20, free_step 3, leash 0.7 spacings, tone 1e4 at 3 spacings). Unlike the paper's 5,000 iterations
+on jittered Monte-Carlo centres, every point is a centre at every iteration. It was 250 iterations of 0.05 -> 0.01
+refreshed every 10 (15 refreshes); the constant maps (4,096 points, 3 seeds) and the camera's tone (5,000 points)
+measured the same with 150 of 0.1 until the start's strata were jittered; with that start 150 lost blue's hard
+core and 180 keeps it (docs/synthesis.md, "Schedule measurements"): 0.72 of the iterations, a third of the refreshes.
 """
 
 from __future__ import annotations
@@ -54,7 +62,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -85,8 +93,13 @@ class Schedule:
     tone: float = 0.0  # weight of the tone term (synthesis.density_term; 0: none)
     tone_scale: float = 1.0  # its blur, in mean spacings sqrt(A / n)
 
+    def rate(self, step: int, iterations: int) -> float:
+        """The step (local spacings) of iteration ``step`` of ``iterations``: a cosine from ``step`` to ``final_step``."""
+        fraction = step / max(iterations - 1, 1)
+        return self.final_step + 0.5 * (self.step - self.final_step) * (1 + math.cos(math.pi * fraction))
 
-SCHEDULES = {"fast": Schedule("fast", iterations=250, refresh=10, step=0.05, final_step=0.01, free_step=3.0, leash=0.7,
+
+SCHEDULES = {"fast": Schedule("fast", iterations=180, refresh=20, step=0.1, final_step=0.01, free_step=3.0, leash=0.7,
                               tone=1e4, tone_scale=3.0)}
 # A run's figures are absurd (sound runs measured: constant, random, disc, text, line and 1 x 10000 maps, every preset):
 ABSURD_LOSS_GROWTH = 100.0  # a final loss this many times its start's (sound runs: at most 2.2x) ...
@@ -177,7 +190,7 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: Ma
     independent = random_points(density, side_px, domain, n, rng)
     if fields is None:
         return independent
-    stratified = StratifiedSampler(density, side_px, domain, n).draw(n, rng)
+    stratified = StratifiedSampler(density, side_px, domain, n, rng).draw(n, rng)  # a random extent: no lattice
     regular_s = regularity(sample_grid(fields.target, stratified, fields.side_px), fields.radii)
     regular_i = regularity(sample_grid(fields.target, independent, fields.side_px), fields.radii)
     chosen = np.concatenate([stratified[rng.random(n) < regular_s], independent[rng.random(n) >= regular_i]])
@@ -186,6 +199,57 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: Ma
     if len(chosen) < n:  # top up from an independent draw (rare: the two shares fluctuate)
         chosen = np.concatenate([chosen, random_points(density, side_px, domain, n - len(chosen), rng)])
     return chosen
+
+
+def redrawn_start(lab_map: LabMap, xy: np.ndarray, region: np.ndarray, seed: int = 0, n: int | None = None,
+                  palette: Palette | None = None) -> np.ndarray:
+    """A warm start (k, 2) for ``synthesize(lab_map, start_points=...)`` after an edit: the points xy (m, 2) of a
+    previous result outside ``region`` ((H, W) on the map's pixels, > 0.5 where edited), then the edited map's own
+    density-matched start (:func:`initial_points`, stratified where the target is regular) inside it.
+
+    ``n``: the total the new start is drawn for (default: the kept points' count over the share of the map's ink
+    outside the region, so the points per ink stay; required if the region holds all the ink). Re-draw this way, not
+    with independent points: a warm start moves points at most a leash of 0.7 spacings (blue), too little to mend an
+    independent sample's holes and clumps.
+    """
+    mask = np.asarray(region) > 0.5
+    if mask.shape != (lab_map.height, lab_map.width):
+        raise PatternshopError(f"region is {mask.shape[::-1]} pixels, the map {lab_map.width} x {lab_map.height}")
+    xy = checked_start_points(xy, None, lab_map.domain) if len(xy) else np.zeros((0, 2))
+    side = max(lab_map.width, lab_map.height)
+
+    def edited(points: np.ndarray) -> np.ndarray:
+        rows = np.clip((points[:, 1] * side).astype(np.int64), 0, lab_map.height - 1)
+        return mask[rows, np.clip((points[:, 0] * side).astype(np.int64), 0, lab_map.width - 1)]
+
+    kept = xy[~edited(xy)]
+    density = lab_map.density()
+    outside = float(density[~mask].sum()) / max(float(density.sum()), 1e-30)
+    if n is None:
+        if not len(kept) or outside <= 0.0:
+            raise PatternshopError("the region holds all the map's ink (or no point is kept): give n")
+        n = max(2, round(len(kept) / outside))
+    fresh = initial_points(lab_map, n, np.random.default_rng(seed), MapFields.build(lab_map, n, palette or load_palette()))
+    return np.concatenate([kept, fresh[edited(fresh)]])
+
+
+def checked_start_points(start_points: np.ndarray, n: int | None, domain: tuple[float, float]) -> np.ndarray:
+    """A warm start as a fresh (k, 2) float64 array, or a :class:`PatternshopError` saying what is wrong with it: not
+    (k, 2) numbers, ``n`` given and not k, a position not finite or outside ``[0, w] x [0, h]``.
+    """
+    xy = np.asarray(start_points)
+    if xy.ndim != 2 or xy.shape[1] != 2 or not (np.issubdtype(xy.dtype, np.number) and not np.iscomplexobj(xy)):
+        raise PatternshopError(f"start_points must be an (n, 2) array of positions, got shape {xy.shape} of {xy.dtype}")
+    if n is not None and n != len(xy):
+        raise PatternshopError(f"n = {n} but start_points holds {len(xy)} points: give one or make them agree")
+    xy = np.array(xy, np.float64)
+    if not np.isfinite(xy).all():
+        raise PatternshopError("start_points holds positions that are not finite (nan or inf)")
+    outside = ((xy < 0.0) | (xy > np.asarray(domain))).any(axis=1)
+    if outside.any():
+        raise PatternshopError(f"{int(outside.sum())} of the start_points lie outside the map's domain "
+                               f"[0, {domain[0]:g}] x [0, {domain[1]:g}] (e.g. {xy[np.argmax(outside)].tolist()})")
+    return xy
 
 
 def reflect(xy: np.ndarray, domain: tuple[float, float]) -> np.ndarray:
@@ -210,6 +274,7 @@ def synthesize(
     progress: bool = False,
     threads: int = 1,
     on_iteration: Callable[[int, np.ndarray], None] | None = None,
+    start_points: np.ndarray | None = None,
 ) -> SynthesisResult:
     """Synthesise points for a map.
 
@@ -228,6 +293,13 @@ def synthesize(
             density-matched start, a usable preview) and after every step (a live
             view, in an internal spatially sorted order that stays the same for the
             whole run: copy to keep).
+        start_points: a warm start: (n, 2) positions in the map's domain coordinates (as the result's
+            ``points.xy``), used instead of the density-matched start; n is their count (an error if ``n``
+            is given and differs). Typically a previous result with the points of an edited region re-drawn
+            for the new map (:func:`redrawn_start`). The run is the whole schedule, on a leash from these
+            points: the points outside an edit stay near where they were (a converged pattern stays
+            converged) and a re-drawn region converges as in a full run, which takes as many iterations
+            (fewer leave it less regular: see docs/synthesis.md, "Warm start"). The result keeps their order.
     """
     import numba
     from tqdm import tqdm
@@ -244,10 +316,12 @@ def synthesize(
         plan = SCHEDULES[schedule] if isinstance(schedule, str) else schedule
     except KeyError:
         raise PatternshopError(f"unknown schedule {schedule!r}; choose one of: {', '.join(SCHEDULES)}") from None
-    if iterations is not None:
-        if iterations < 0:
-            raise PatternshopError(f"iterations must be >= 0, got {iterations}")
-        plan = replace(plan, iterations=iterations)
+    if iterations is not None and iterations < 0:
+        raise PatternshopError(f"iterations must be >= 0, got {iterations}")
+    if start_points is not None:
+        start_points = checked_start_points(start_points, n, lab_map.domain)
+        n = len(start_points)
+    count = plan.iterations if iterations is None else iterations
     n = point_count(lab_map) if n is None else n
     if n < 2:
         raise PatternshopError(f"need at least 2 points, got {n}")
@@ -257,7 +331,7 @@ def synthesize(
     palette = palette or load_palette()
     fields = MapFields.build(lab_map, n, palette, guide=guide)
     tone = DensityTerm(lab_map, fields, plan.tone, plan.tone_scale) if plan.tone > 0 else None
-    xy = initial_points(lab_map, n, rng, fields)
+    xy = initial_points(lab_map, n, rng, fields) if start_points is None else start_points
     if fields.nearest_ink is not None:  # a start drawn across a pixel edge into the white
         hold_in_ink_reference(xy, np.zeros_like(xy), fields.nearest_ink, fields.ink_side_px)
     order = spatial_order(xy, fields.domain)  # points stay sorted in memory along a Hilbert curve while they move
@@ -269,13 +343,12 @@ def synthesize(
     setup = time.perf_counter() - start
     losses: list[float] = []
     step_length = leash = None
-    bar = tqdm(total=plan.iterations, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
+    bar = tqdm(total=count, desc=f"synthesis (n={n})", unit="it", disable=not progress, leave=False)
     if on_iteration is not None:
         on_iteration(0, xy)
     travelled = math.inf  # since the last refresh, in iterations at the initial step
-    for step in range(plan.iterations):
-        fraction = step / max(plan.iterations - 1, 1)
-        rate = plan.final_step + 0.5 * (plan.step - plan.final_step) * (1 + math.cos(math.pi * fraction))
+    for step in range(count):
+        rate = plan.rate(step, count)
         if travelled >= plan.refresh:
             travelled = 0.0
             hood = objective = None  # the old lists go before the new ones are built (peak memory)
@@ -284,6 +357,11 @@ def synthesize(
             freedom = 1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)
             step_length = hood.spacing * hood.structure * freedom
             leash = plan.leash * hood.spacing * freedom
+            if not step_length.any():  # white noise everywhere: no point can move, the start is the result
+                if on_iteration is not None:
+                    on_iteration(count, xy)
+                bar.update(count - step)
+                break
         loss, gradient = objective(xy)
         if tone is not None and tone.active:
             tone(xy, gradient)  # its gradient added; the loss recorded stays the PCF objective's (see absurd_run)
@@ -302,7 +380,7 @@ def synthesize(
     points = np.empty_like(xy)
     points[order] = xy  # the start's order
     final = final_loss(fields, xy, denominators, workspace, windows)
-    return SynthesisResult(PointSet(points, fields.domain, points_per_ink=points_per_ink_of(lab_map, n)), plan.name, plan.iterations,
+    return SynthesisResult(PointSet(points, fields.domain, points_per_ink=points_per_ink_of(lab_map, n)), plan.name, count,
                            time.perf_counter() - start, setup, losses, final,
                            absurd_run(losses[0] if losses else final, final, misplaced_share(lab_map, points)))
 

@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     parser.add_argument("--points", type=positive_int, metavar="N", help="number of points (default: from the ink)")
     parser.add_argument("--points-per-ink", type=positive_float, default=POINTS_PER_INK, metavar="K",
                         help=f"{POINTS_PER_INK_MEANING} (default {POINTS_PER_INK})")
-    parser.add_argument("--schedule", choices=("fast",), default="fast", help="optimisation schedule (only fast: 250 iterations, every point a centre at each)")
+    parser.add_argument("--schedule", choices=("fast",), default="fast", help="optimisation schedule (only fast: 180 iterations, every point a centre at each)")
     parser.add_argument("--iterations", type=positive_int, metavar="K", help="override the schedule's iteration count")
     parser.add_argument("--seed", type=seed, default=0, help="random seed, 0 to 2^32-1 (default 0); same seed, same points")
     parser.add_argument("--dot-sizes", action="store_true", help="give each point a radius so the rendering matches the L channel's tone")
