@@ -44,8 +44,8 @@ browser:
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  echo "installing chromium and chromium-driver for the studio's browser tests"; \
 	  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium chromium-driver >/dev/null; } \
-	    || echo "could not install chromium: the studio's browser tests will be skipped"; \
-	else echo "chromium is not installed (apt-get install chromium chromium-driver as root): the studio's browser tests will be skipped"; fi
+	    || echo "could not install chromium: the studio's browser tests will be skipped (under CI=true they fail)"; \
+	else echo "chromium is not installed (apt-get install chromium chromium-driver as root): the studio's browser tests will be skipped (under CI=true they fail)"; fi
 
 bench: setup
 	$(BIN)/python bench/run.py

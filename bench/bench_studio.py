@@ -12,12 +12,20 @@ A real server (``patternshop studio``, one synthesis thread) in a child process,
   edit's request to the first points ``/api/points.bin`` serves (the quick density-matched preview), to the
   first frame of the synthesis itself (its density-matched start or a later iteration) and to the final points, polled every 0.12 s as the page does; on the logo map (384 x 256) and on the 1024 x 1024
   map; and the same synthesis in-process without a server (``api.synthesize``), for the server's overhead;
+* **edit to points after a local edit**: the same, a second time, once a synthesis of the map exists: the studio
+  then re-makes only a window around the edit (:mod:`patternshop.studio.incremental`); the first frame is the
+  kept points plus the new ones drawn in the edited region;
+* **local vs full, in-process** (``local_vs_full``): for edits of the 1024 x 1024 map and the logo, the local
+  update's time and the full synthesis's, and the points in the changed pixels of each compared with the
+  independent statistics of ``fidelity_stats`` (count against the map's expectation, nearest-neighbour distances
+  in local r_max units: mean, coefficient of variation, minimum, stacked pairs); with ``--threshold``, density
+  fills of growing squares on the 1024 x 1024 map (where a local update stops paying: ``MAX_WINDOW_SHARE``);
 * **server memory** (resident, from /proc) before and at its peak during a 100,000-point synthesis.
 
 Targets (issue 30; quiet machine, one thread): stroke to repaint <= 30 ms median; edit to first points
 <= 1 s, to the final 20,000 points <= 3 s. The machine is shared: the load average is recorded.
 The browser part is skipped (with a note in the results) when chromium, chromedriver or selenium is
-missing. Run ``python bench/bench_studio.py [--strokes N]``; results go to ``out/bench/studio.json``.
+missing. Run ``python bench/bench_studio.py [--strokes N] [--threshold]``; results go to ``out/bench/studio.json``.
 """
 
 from __future__ import annotations
@@ -35,6 +43,7 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 from common import save_results  # bench/ is on sys.path when run as a script
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -111,8 +120,65 @@ def edit_to_points(server: Server, points: int, x: float, y: float) -> dict:
         elif meta["status"]["job"]["state"] in ("error", "cancelled"):
             raise SystemExit(f"synthesis failed: {meta['status']['text']}")
         time.sleep(0.12)
-    return {"points": points, "edit_to_first_points_s": round(first, 3),
-            "edit_to_synthesis_own_points_s": round(own, 3), "edit_to_final_points_s": round(final, 3)}
+    status = server.call("/api/status")
+    return {"points": points, "final_points": meta["n"], "local": status["job"]["local"],
+            "edit_to_first_points_s": round(first, 3), "edit_to_synthesis_own_points_s": round(own, 3),
+            "edit_to_final_points_s": round(final, 3)}
+
+
+def region_statistics(xy: np.ndarray, lab: np.ndarray, region: np.ndarray) -> dict:
+    """The points (n, 2) of a map (H, W, 3) in a region (H, W) bool, measured by ``fidelity_stats``: their count over
+    the map's expectation and their nearest-neighbour distances (to any point) in local r_max units."""
+    from fidelity_stats import STACKED, Intensity, nearest_neighbours
+
+    side = max(lab.shape[:2])
+    density = np.clip(1.0 - lab[..., 0].astype(np.float64) / 100.0, 0.0, 1.0)
+    intensity = Intensity(density, (lab.shape[1] / side, lab.shape[0] / side), len(xy))
+    col = np.clip((xy[:, 0] * side).astype(np.int64), 0, lab.shape[1] - 1)
+    row = np.clip((xy[:, 1] * side).astype(np.int64), 0, lab.shape[0] - 1)
+    inside = region[row, col]
+    nn = nearest_neighbours(xy, intensity.domain)[inside] / intensity.local_r_max(xy[inside])
+    return {"points": int(inside.sum()), "count_over_expected": round(inside.sum() / (len(xy) * density[region].sum()
+                                                                                      / density.sum()), 3),
+            "nn_mean": round(float(nn.mean()), 3), "nn_cv": round(float(nn.std() / nn.mean()), 3),
+            "nn_min": round(float(nn.min()), 3), "stacked": int(np.sum(nn < STACKED))}
+
+
+def local_vs_full(lab_map: object, edits: dict[str, dict], points: int = 20_000) -> dict:
+    """In-process, one thread: a full synthesis of ``points`` (the base), then per edit the local update and a
+    full synthesis of the edited map, timed, and their points in the changed pixels measured."""
+    from patternshop import api
+    from patternshop.studio.incremental import Base, plan_local_update
+    from patternshop.studio.tools import apply_edit
+    from synthesis.synthesize import point_count, points_per_ink_of
+
+    lab = np.asarray(lab_map.lab)
+    per_ink = points_per_ink_of(lab_map, points)
+    base = Base(lab, api.synthesize(lab_map, points=points).points.xy, 0, ("ink", per_ink))
+    rows = {}
+    for name, edit in edits.items():
+        edited = apply_edit(lab, edit).lab
+        n = point_count(api.LabMap(edited), per_ink)
+        start = time.perf_counter()
+        plan = plan_local_update(base, edited, n, 0, ("ink", per_ink), max_window_share=1.0)
+        local, _ = plan.run(0)
+        local_s = time.perf_counter() - start
+        start = time.perf_counter()
+        full = api.synthesize(api.LabMap(edited), points=n).points.xy
+        full_s = time.perf_counter() - start
+        changed = np.any(edited != lab, axis=2)
+        window = np.zeros_like(changed)  # the whole window, with the seam between refined and kept points
+        window[plan.box[0] : plan.box[1], plan.box[2] : plan.box[3]] = True
+        rows[name] = {"changed_share": round(plan.changed_share, 4), "window_share": round(plan.window_share, 4),
+                      "window_points": len(plan.start), "iterations": plan.iterations, "n_local": len(local), "n_full": n,
+                      "local_s": round(local_s, 2), "full_s": round(full_s, 2),
+                      "local_changed_region": region_statistics(local, edited, changed),
+                      "full_changed_region": region_statistics(full, edited, changed),
+                      "local_window": region_statistics(local, edited, window),
+                      "full_window": region_statistics(full, edited, window),
+                      "load_average": os.getloadavg()}
+        print(name, json.dumps(rows[name]), flush=True)
+    return rows
 
 
 def memory_during(server: Server, points: int) -> dict:
@@ -200,6 +266,7 @@ def brush_latency(server: Server, strokes: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--strokes", type=int, default=100)
+    parser.add_argument("--threshold", action="store_true", help="also local vs full for growing square fills")
     args = parser.parse_args()
     from patternshop import api
 
@@ -207,11 +274,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         big = folder / "big.tif"
-        api.write_map(api.uniform_map(1024, density=0.3, correlation="blue"), big)
+        big_map = api.uniform_map(1024, density=0.3, correlation="blue")
+        api.write_map(big_map, big)
         server = Server(big, folder / "project-big")
         try:
             results["map_1024"] = {"brush": brush_latency(server, args.strokes),
-                                   "synthesis": edit_to_points(server, 20_000, 500, 500)}
+                                   "synthesis": edit_to_points(server, 20_000, 500, 500),
+                                   "synthesis_after_local_edit": edit_to_points(server, 20_000, 200, 700)}
         finally:
             server.stop()
         server = Server(ROOT / "examples" / "logo.tif", folder / "project-logo")
@@ -219,6 +288,7 @@ def main() -> None:
             edit_to_points(server, 2_000, 100, 30)  # warm: the kernels are compiled or loaded once per process
             results["logo_384x256"] = {"server_start_s": server.start_s,
                                        "synthesis": edit_to_points(server, 20_000, 300, 30),
+                                       "synthesis_after_local_edit": edit_to_points(server, 20_000, 60, 200),
                                        "memory": memory_during(server, 100_000)}
         finally:
             server.stop()
@@ -227,6 +297,18 @@ def main() -> None:
         start = time.perf_counter()
         api.synthesize(logo, points=20_000)
         results["logo_384x256"]["synthesis"]["in_process_without_server_s"] = round(time.perf_counter() - start, 3)
+    stroke = {"type": "density", "size": 30, "strength": 0.3}
+    results["local_vs_full"] = {
+        "map_1024": local_vs_full(big_map, {
+            "stroke": {**stroke, "centres": [[500, 500], [520, 500]]},
+            "fill_200px": {"type": "fill", "rect": [100, 600, 300, 800], "density": 0.6},
+            "colour_fill_200px": {"type": "fill", "rect": [600, 100, 800, 300], "ab": list(api.preset("green"))}}),
+        "logo_384x256": local_vs_full(logo, {"stroke": {**stroke, "centres": [[300, 30], [320, 30]]},
+                                             "fill_100px": {"type": "fill", "rect": [40, 60, 140, 160], "density": 0.7}})}
+    if args.threshold:
+        results["local_vs_full"]["threshold_1024"] = local_vs_full(big_map, {
+            f"square_{2 * half}px": {"type": "fill", "rect": [512 - half, 512 - half, 512 + half, 512 + half], "density": 0.5}
+            for half in (50, 120, 200, 300, 400, 512)})
     results["load_average_after"] = os.getloadavg()
     save_results("studio", results)
 

@@ -21,6 +21,7 @@ from helpers import random_map
 from PIL import Image
 from starlette.testclient import TestClient
 
+from patternshop.studio import server
 from patternshop.studio.project import Project
 from patternshop.studio.server import Studio, create_app
 from patternshop.studio.tools import apply_edit, stroke_weight
@@ -197,6 +198,11 @@ def test_fill_gradient_expand_and_eraser(opened):
     lab = current_lab(opened)
     np.testing.assert_allclose(lab[:8, :10], np.broadcast_to(np.array([10.0, -40, 20], np.float32), (8, 10, 3)), atol=1e-4)
     assert lab[8, 0, 1] == 24.0 and lab[0, 10, 1] == 24.0
+    flipped = opened.post("/api/edit", json={"type": "fill", "rect": [20.5, 6, 12, 2], "ab": [-40, 20]})  # corners any way
+    assert flipped.json()["changed"] and np.all(current_lab(opened)[2:6, 12:21, 1] == -40)
+    assert current_lab(opened)[2:6, 21, 1] == pytest.approx(24.0) and current_lab(opened)[6, 12, 1] == 24.0
+    assert not opened.post("/api/edit", json={"type": "fill", "rect": [30, 2, 30, 9], "ab": [0, 0]}).json()["changed"]
+    lab = current_lab(opened)
     opened.post("/api/edit", json={"type": "gradient", "start": [0, 0], "end": [48, 0], "values": [1.0, 0.0]})
     L = current_lab(opened)[..., 0]
     assert L[5, 0] < 5 and L[5, 47] > 95 and np.all(np.diff(L[20]) >= 0)
@@ -268,6 +274,23 @@ def test_history_is_limited_and_nothing_to_undo(tmp_path):
     for step in range(8):
         project.edit({"type": "fill", "rect": [step, 0, step + 1, 1], "density": 1.0})
     assert len(project.state["undo"]) == 5 and len(list((tmp_path / "p" / "history").iterdir())) == 5
+    project.close()
+
+
+def test_summary_is_built_once_per_committed_state(tmp_path):
+    """The page polls the status: the project's summary is cached until the next commit (edit, undo, settings,
+    points), and then shows the change."""
+    project = Project(tmp_path / "p")
+    project.open_map(np.asarray(smooth_map().lab), "smooth")
+    first = project.summary()
+    assert project.summary()["settings"] is first["settings"]  # not rebuilt
+    project.update_settings({"seed": 4})
+    assert project.summary()["settings"]["seed"] == 4
+    project.edit({"type": "density", "centres": [[5, 5]], "size": 4})
+    summary = project.summary()
+    assert summary["version"] != first["version"] and summary["undo"][-1] == "density brush (darken)"
+    project.undo()
+    assert project.summary()["redo"] == ["density brush (darken)"]
     project.close()
 
 
@@ -354,6 +377,166 @@ def test_an_edit_cancels_the_running_synthesis(opened):
     opened.post("/api/synthesize", json={"points": 2000, "iterations": 100000})
     response = opened.post("/api/cancel")
     assert response.json()["cancelled"] and response.json()["status"]["job"]["state"] == "cancelled"
+
+
+def read_events(lines, until: str, timeout: float = 60.0) -> list[tuple[str, dict]]:
+    """(event, data) pairs from the lines of a text/event-stream response, up to the first data containing ``until``
+    (an idle stream sends keep-alive lines: make EVENT_HEARTBEAT short so that the timeout is looked at)."""
+    events, name, deadline = [], None, time.monotonic() + timeout
+    for line in lines:
+        assert time.monotonic() < deadline, f"no {until!r} after {timeout} s: {events}"
+        if line.startswith("event: "):
+            name = line[len("event: "):]
+        elif line.startswith("data: "):
+            events.append((name, json.loads(line[len("data: "):])))
+            if until in line:
+                return events
+    raise AssertionError(f"the event stream ended before {until!r}: {events}")
+
+
+def test_progress_events_stream_a_synthesis(opened, studio, monkeypatch):
+    """GET /api/events (Server-Sent Events) needs the token (as a query parameter) like every API call, sends
+    the status at once, then the frames and the status as the synthesis runs, the final points before "done"."""
+    monkeypatch.setattr(server, "EVENT_HEARTBEAT", 0.5)
+    with TestClient(create_app(studio), base_url=BASE) as bare:
+        with bare.stream("GET", "/api/events") as response:
+            assert response.status_code == 403
+        with bare.stream("GET", "/api/events", params={"token": TOKEN}, headers={"Origin": "http://evil.example"}) as response:
+            assert response.status_code == 403
+        with bare.stream("GET", "/api/events", params={"token": TOKEN}) as response:
+            assert response.status_code == 200 and response.headers["content-type"].startswith("text/event-stream")
+            lines = response.iter_lines()
+            first = read_events(lines, '"state": "idle"')
+            assert first == [("status", studio.status())]
+            assert bare.post("/api/synthesize", params={"token": TOKEN},
+                             json={"points": 300, "seed": 3, "iterations": 40}).status_code == 202
+            events = read_events(lines, '"state": "done"')
+    points = [data for name, data in events if name == "points"]
+    assert points[0]["preview"] and not points[0]["final"] and points[0]["n"] == 300
+    assert [p["frame"] for p in points] == sorted({p["frame"] for p in points})
+    assert points[-1]["final"] and points[-1]["n"] == 300 and points[-1]["iteration"] == 40
+    assert events[-1][0] == "status" and events[-1][1]["job"]["n"] == 300
+    assert re.search(r"\b300 points\b", events[-1][1]["text"]), events[-1][1]["text"]
+    assert events.index(("points", points[-1])) < len(events) - 1  # the final points come before "done"
+    assert any(name == "status" and data["job"]["state"] == "running" for name, data in events)
+
+
+def test_idle_event_stream_keeps_alive_and_ends_when_the_server_stops(studio, monkeypatch):
+    """An idle stream sends keep-alive comments (writing is how a gone client is noticed) and ends once the
+    server is stopping (uvicorn waits for open responses when it stops)."""
+    import asyncio
+
+    monkeypatch.setattr(server, "EVENT_HEARTBEAT", 0.5)
+
+    async def collect() -> list[str]:
+        chunks = []
+        async for chunk in server._event_stream(studio):
+            chunks.append(chunk)
+            if chunk.startswith(":"):
+                studio.stopping = lambda: True
+        return chunks
+
+    chunks = asyncio.run(asyncio.wait_for(collect(), 30))
+    assert chunks[0].startswith("retry:") and [c.split("\n")[0] for c in chunks[1:]] == ["event: status", ": keep-alive"]
+
+
+def points_of(client) -> np.ndarray:
+    text = client.get("/api/points.txt").text
+    return np.array([[float(v) for v in line.split()] for line in text.splitlines() if line and not line.startswith("#")])
+
+
+def test_a_local_edit_remakes_only_its_region(client):
+    """After a synthesis, an edit in a corner re-makes the points there (at the new density, with no stacked
+    points) and leaves every point far from it exactly where it was; a full synthesis would move them all."""
+    client.post("/api/new", json={"width": 128, "height": 96, "density": 0.4, "correlation": "blue"})
+    client.post("/api/settings", json={"points_per_ink": 8000.0})  # 8000 x 0.75 x 0.4 = 2400 points
+    client.post("/api/synthesize", json={})
+    assert wait_for(client, "done")["job"]["local"] is None  # the first synthesis is a full one
+    before = points_of(client)
+    assert len(before) == 2400
+    rect = [8, 8, 40, 40]  # map pixels; darker: density 0.4 -> 0.8
+    client.post("/api/edit", json={"type": "fill", "rect": rect, "density": 0.8})
+    client.post("/api/synthesize", json={})
+    status = wait_for(client, "done")
+    assert status["job"]["local"] is not None and "re-made locally" in status["text"], status
+    after = points_of(client)
+    side = 128
+    expected = 8000 * (128 * 96 / side**2) * (0.4 + (0.8 - 0.4) * 32 * 32 / (128 * 96))
+    assert abs(len(after) - expected) < 0.01 * expected
+    spacing = np.sqrt(0.75 / len(after))  # map units
+    far = lambda xy: (xy[:, 0] * side > 40 + 12 * spacing * side) | (xy[:, 1] * side > 40 + 12 * spacing * side)
+    np.testing.assert_array_equal(np.sort(before[far(before)], axis=0), np.sort(after[far(after)], axis=0))
+    inside = np.all((after * side >= 8) & (after * side <= 40), axis=1)
+    assert abs(inside.sum() - len(after) * 0.8 * 32 * 32 / ((0.4 * (128 * 96 - 32 * 32)) + 0.8 * 32 * 32)) < 0.08 * inside.sum()
+    from scipy.spatial import cKDTree
+
+    distance, _ = cKDTree(after).query(after[inside], k=2)
+    local_spacing = np.sqrt(2 / (np.sqrt(3) * len(after) * 0.8 / (0.4 * 0.75 + 0.4 * 32 * 32 / side**2)))
+    assert distance[:, 1].min() > 0.3 * local_spacing  # blue noise: no stacked or near points in the new region
+    # another seed (or a large change) is a full synthesis again
+    client.post("/api/synthesize", json={"seed": 7})
+    assert wait_for(client, "done")["job"]["local"] is None
+
+
+def test_local_update_plan():
+    """plan_local_update: None (a full synthesis) without a change, with another seed, count setting or size, or a
+    change too large; else kept points outside the window, about the new count, new points only near the change."""
+    from patternshop.studio.incremental import Base, plan_local_update
+
+    rng = np.random.default_rng(0)
+    lab = np.zeros((64, 96, 3), np.float32)
+    lab[..., 0] = 50.0
+    xy = rng.random((3000, 2)) * (1.0, 64 / 96)
+    base = Base(lab, xy, 0, ("ink", 1.0))
+    edited = lab.copy()
+    edited[10:14, 70:74, 0] = 20.0  # darker
+    assert plan_local_update(base, lab, 3000, 0, ("ink", 1.0)) is None
+    assert plan_local_update(base, edited, 3000, 1, ("ink", 1.0)) is None
+    assert plan_local_update(base, edited, 3000, 0, ("points", 3000)) is None
+    assert plan_local_update(base, edited[:-1], 3000, 0, ("ink", 1.0)) is None
+    wide = lab.copy()
+    wide[:, :84, 0] = 20.0  # the window: the whole map
+    assert plan_local_update(base, wide, 3000, 0, ("ink", 1.0)) is None
+    plan = plan_local_update(base, edited, 3030, 0, ("ink", 1.0))
+    y0, y1, x0, x1 = plan.box
+    assert y0 <= 10 and y1 >= 14 and x0 <= 70 and x1 >= 74 and plan.window_share < 0.3
+    assert abs(plan.n - 3030) <= 40 and plan.drawn > 0  # kept: a random base, its count in the region varies
+    outside = ~np.all((xy * 96 >= (x0, y0)) & (xy * 96 < (x1, y1)), axis=1)
+    np.testing.assert_array_equal(plan.fixed, xy[outside])
+    new = plan.start[-plan.drawn :] * 96
+    assert np.all(np.hypot(new[:, 0] - 72, new[:, 1] - 12) < 2 + 6 * np.sqrt(64 * 96 / 3030) * 2)
+    window_xy = plan.to_window(plan.start)
+    np.testing.assert_allclose(plan.to_map(window_xy), plan.start, atol=1e-12)
+    moved = plan.merge(window_xy + 1e-4)  # only the band's points take the run's positions
+    assert np.array_equal(moved[: len(plan.fixed)], plan.fixed)
+    changed = np.any(moved[len(plan.fixed) :] != plan.start, axis=1)
+    np.testing.assert_array_equal(changed, plan.refined)
+
+
+def test_synthesis_restarts_from_saved_points(tmp_path):
+    """A restarted studio whose saved points belong to the current map re-makes an edit locally too."""
+    project = Project(tmp_path / "p")
+    project.open_map(np.asarray(api_uniform(96, 0.4).lab), "m")
+    project.update_settings({"points_per_ink": 4000.0})
+    first = Studio(project, token=TOKEN)
+    first.synthesizer.start()
+    first.synthesizer.wait(60)
+    assert first.synthesizer.status()["state"] == "done"
+    project.close()
+    project = Project(tmp_path / "p")
+    second = Studio(project, token=TOKEN)
+    assert second.synthesizer.base is not None
+    project.edit({"type": "density", "centres": [[20, 20]], "size": 8, "strength": 0.5})
+    second.synthesizer.start()
+    second.synthesizer.wait(60)
+    assert second.synthesizer.status()["state"] == "done" and second.synthesizer.status()["local"] is not None
+    project.close()
+
+
+def api_uniform(side: int, density: float) -> LabMap:
+    from patternshop import api
+
+    return api.uniform_map(side, density=density, correlation="blue")
 
 
 def test_bad_synthesis_requests(opened, client):

@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -147,6 +148,21 @@ def largest_difference_from_server(driver) -> float:
         "  for (let i = 0; i < server.length; i++) m = Math.max(m, Math.abs(server[i] - S.map.lab[i])); done(m); });")
 
 
+def synthesize_and_wait(driver, words: str) -> None:
+    """Click *Synthesize*; wait until a new job is over and the status line says ``words``."""
+    job = server_state(driver)["status"]["job"].get("job", 0)
+    by_testid(driver, "synthesize").click()
+    WebDriverWait(driver, 90).until(lambda d: server_state(d)["status"]["job"].get("job", 0) > job
+                                    and words in by_testid(d, "status").text)
+
+
+def synthesised_points(driver) -> np.ndarray:
+    """(n, 2) the last synthesised points, as GET /api/points.txt serves them."""
+    text = driver.execute_async_script(
+        "const done = arguments[arguments.length - 1]; api('/api/points.txt', {raw: true}).then((r) => r.text()).then(done);")
+    return np.array([[float(v) for v in line.split()] for line in text.splitlines() if line and not line.startswith("#")])
+
+
 def server_state(driver) -> dict:
     return driver.execute_async_script("const done = arguments[arguments.length - 1]; api('/api/state').then(done);")
 
@@ -199,7 +215,8 @@ def test_user_flow(driver, server, downloads):
     count.clear()
     count.send_keys(str(POINTS))
     by_testid(driver, "synthesize").click()
-    WebDriverWait(driver, 90).until(lambda d: re.search(rf"\b{POINTS} points\b", by_testid(d, "status").text))
+    WebDriverWait(driver, 90).until(lambda d: re.search(rf"\b{POINTS} points\b", by_testid(d, "status").text)
+                                    and d.execute_script("return S.timing.final !== null;"))  # the final points shown
     time.sleep(0.3)
     dots = dark_pixels(driver)
     assert dots > POINTS, dots  # every point a dot of a few pixels
@@ -207,6 +224,8 @@ def test_user_flow(driver, server, downloads):
     print(f"click to first points {timing['firstPoints']:.0f} ms (partial: {timing['firstWasPartial']}), "
           f"to all {POINTS} points {timing['final']:.0f} ms")
     assert timing["firstWasPartial"] and timing["firstPoints"] < timing["final"]  # the points streamed in
+    # ... by Server-Sent Events: the EventSource is open (the page polls only once it has failed for good)
+    assert driver.execute_script("return S.events !== null && S.events.readyState === EventSource.OPEN && !S.polling;")
     driver.save_screenshot(str(out / "studio_after_synthesis.png"))
     # 4. undo the colour stroke: the map shows the old colour again
     by_testid(driver, "undo").click()
@@ -275,6 +294,22 @@ def test_user_flow(driver, server, downloads):
         "let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i + 3] > 200 && Math.abs(d[i] - d[i + 2]) > 20) n++; return n;")
     assert coloured > 10_000, coloured  # the map shows under the dots
     driver.save_screenshot(str(out / "studio_tools.png"))
+    # 9. a local edit after a synthesis: only the points near it are re-made, the others stay where they were
+    driver.execute_script("saveSetting('overlay', 0); draw();")
+    synthesize_and_wait(driver, "Done:")
+    before = synthesised_points(driver)
+    by_testid(driver, "tool-density").click()
+    driver.execute_script("saveSetting('mode', 'lighten'); applySettingsToControls();")
+    stroke(driver, [(40.0, 225.0), (60.0, 225.0)])  # lighten to white, bottom left (the gradient's dark end; size 24)
+    wait_idle(driver)
+    synthesize_and_wait(driver, "re-made locally")
+    after = synthesised_points(driver)
+    far = lambda xy: np.hypot(xy[:, 0] * 384 - 50, xy[:, 1] * 384 - 225) > 80  # map pixels from the stroke
+    near = lambda xy: np.hypot(xy[:, 0] * 384 - 50, xy[:, 1] * 384 - 225) < 8
+    np.testing.assert_array_equal(np.sort(before[far(before)], axis=0), np.sort(after[far(after)], axis=0))
+    assert near(before).sum() > 5 and near(after).sum() <= 0.2 * near(before).sum(), (near(before).sum(), near(after).sum())
+    time.sleep(0.3)
+    driver.save_screenshot(str(out / "studio_local.png"))
     if os.environ.get("PATTERNSHOP_UPDATE_DOCS") != "1":
         return
     from PIL import Image
@@ -282,3 +317,22 @@ def test_user_flow(driver, server, downloads):
     with Image.open(out / "studio.png") as shot:
         small = shot.convert("RGB").resize((shot.width * 2 // 3, shot.height * 2 // 3), Image.Resampling.LANCZOS)
         small.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(ROOT / "docs" / "studio.png", optimize=True)
+
+
+def test_progress_falls_back_to_polling_when_the_event_stream_fails(driver, server):
+    """With GET /api/events refused (a wrong token: 403), the EventSource errors for good and the page polls:
+    a synthesis still ends with "Done: N points" and its dots."""
+    script = driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": (
+        "const RealEventSource = window.EventSource;"
+        "window.EventSource = class extends RealEventSource { constructor(url) { super(url.replace('token=', 'token=wrong')); } };")})
+    try:
+        driver.get(server)
+        wait_ready(driver)
+        WebDriverWait(driver, 30).until(lambda d: d.execute_script("return S.events === null;"))
+        synthesize_and_wait(driver, "Done:")
+        assert re.search(r"Done: \d+ points", by_testid(driver, "status").text)
+        assert driver.execute_script("return S.events === null;")
+        time.sleep(0.3)
+        assert dark_pixels(driver) > 100
+    finally:
+        driver.execute_cdp_cmd("Page.removeScriptToEvaluateOnNewDocument", {"identifier": script["identifier"]})

@@ -12,6 +12,11 @@ density, a few milliseconds) while the synthesis sets itself up (its fields and 
 0.9 s). :meth:`Synthesizer.warm_up` (called by the server at start, in a background thread) imports the
 synthesiser, loads the palette and runs a tiny synthesis so that the first real one pays no import or kernel
 loading (about 1 s).
+
+After an edit, a synthesis with the same seed and point setting as the last finished one is *local*
+(:mod:`patternshop.studio.incremental`): the points away from what changed since then stay, new ones are drawn
+in the changed region, and the synthesiser warm-starts on a window around it; its first frame (the kept and the
+new points) is published at once, as the preview is for a full synthesis.
 """
 
 from __future__ import annotations
@@ -20,10 +25,11 @@ import itertools
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
+from patternshop.studio.incremental import Base, LocalUpdate, plan_local_update
 from patternshop.studio.project import Project
 from synthesis.errors import PatternshopError
 from synthesis.resources import synthesis_bytes
@@ -72,6 +78,9 @@ class Job:
     started: float = field(default_factory=time.perf_counter)
     seconds: float = 0.0
     first_points_seconds: float | None = None
+    lab: np.ndarray | None = field(default=None, repr=False)  # the map it synthesises (the next run's base)
+    count_key: tuple = ()  # what decided n: ("points", n) or ("ink", points_per_ink)
+    local: dict[str, Any] | None = None  # a local update: changed_share, window_share, window_points, drawn
 
 
 @dataclass
@@ -90,9 +99,13 @@ class Frame:
 class Synthesizer:
     """Runs syntheses of a project's map in worker threads (one at a time)."""
 
-    def __init__(self, project: Project, max_memory_gb: float = 4.0) -> None:
+    def __init__(self, project: Project, max_memory_gb: float = 4.0,
+                 on_change: Callable[[], None] | None = None) -> None:
+        """``on_change()`` is called (from any thread, without the lock held) after a frame is published or a
+        job's state changes: the server's event streams wake on it."""
         self.project = project
         self.max_memory_gb = max_memory_gb
+        self.on_change = on_change or (lambda: None)
         self.lock = threading.Lock()
         self.job: Job | None = None
         self.frame: Frame | None = None
@@ -101,6 +114,7 @@ class Synthesizer:
         self._threads: list[threading.Thread] = []
         self._warm_thread: threading.Thread | None = None
         self._warm_now = threading.Event()
+        self.base: Base | None = None  # the last finished synthesis, where a local one starts from
         self._load_saved_points()
 
     def _load_saved_points(self) -> None:
@@ -116,24 +130,28 @@ class Synthesizer:
         info = self.project.state["points"]
         self.frame = Frame(next(self._frames), 0, int(info.get("version", -1)), int(info.get("iterations", 0)),
                            int(info.get("iterations", 0)), True, points.xy, points.domain)
+        if self.project.has_map and info.get("version") == self.project.version and "count_key" in info:
+            self.base = Base(self.project.current()[0], points.xy, int(info["seed"]), tuple(info["count_key"]))
 
     # --- control -----------------------------------------------------------------------------------------
     def start(self, points: int | None = None, seed: int | None = None, iterations: int | None = None) -> dict[str, Any]:
         """Cancel any running synthesis and start one of the current map; returns :meth:`status`.
 
         ``points``, ``seed`` default to the project's settings (points: ``points_per_ink`` x mean density).
+        Without ``iterations``, a run after an edit is local when it can be (see the module docstring).
 
         Raises:
             PatternshopError: no map, a white map, a bad count or seed, or a run over ``max_memory_gb``.
         """
         from synthesis.labmap import LabMap
-        from synthesis.synthesize import SCHEDULES, point_count
+        from synthesis.synthesize import SCHEDULES, point_count, points_per_ink_of
 
         lab, version = self.project.current()
         settings = self.project.settings
         lab_map = LabMap(lab)
         if points is None:
             points = settings["points"]
+        count_key = ("ink", float(settings["points_per_ink"])) if points is None else ("points", points)
         if points is None:
             points = point_count(lab_map, settings["points_per_ink"])
         if isinstance(points, bool) or not isinstance(points, int) or points < 2:
@@ -148,15 +166,37 @@ class Synthesizer:
             raise PatternshopError(f"synthesising {points:,} points needs about {needed / GIGABYTE:.3g} GB of memory, over "
                                    f"the limit of {self.max_memory_gb:g} GB (fewer points, or restart the studio "
                                    "with a higher --max-memory-gb)")
-        total = iterations if iterations is not None else SCHEDULES["fast"].iterations
+        with self.lock:
+            base = self.base
+        local = None
+        if iterations is None and base is not None and base.lab.shape == lab.shape:
+            try:
+                # the new map's count at the base's points per ink (a set count keeps its density per ink until the
+                # next full run: a darker stroke gets more points, not fewer everywhere else)
+                local_n = points if count_key[0] == "ink" else point_count(lab_map, points_per_ink_of(LabMap(base.lab),
+                                                                                                       len(base.xy)))
+                local = plan_local_update(base, lab, local_n, seed, count_key)
+            except PatternshopError:  # not to be re-made locally (a white map...): the full synthesis says why, if anything
+                local = None
+        if local is not None:
+            points, total = local.n, local.iterations
+        else:
+            total = iterations if iterations is not None else SCHEDULES["fast"].iterations
         with self.lock:
             if self.job is not None and self.job.state == "running":
                 self.job.cancel.set()
                 self.job.state, self.job.message = "cancelled", "replaced by a new synthesis"
-            job = Job(next(self._ids), version, points, seed, total)
+            job = Job(next(self._ids), version, points, seed, total, lab=lab, count_key=count_key)
             self.job = job
-        self._publish(job, preview_points(lab, points, seed), 0, False, lab_map.domain, True)  # first points at once
-        thread = threading.Thread(target=self._run, args=(job, lab_map, iterations), name=f"synthesis-{job.id}", daemon=True)
+        if local is None:
+            self._publish(job, preview_points(lab, points, seed), 0, False, lab_map.domain, True)  # first points at once
+            run = self._full_run(lab_map, points, seed, iterations)
+        else:
+            job.local = {"changed_share": round(local.changed_share, 5), "window_share": round(local.window_share, 5),
+                         "window_points": len(local.start), "drawn": local.drawn}
+            self._publish(job, np.concatenate([local.fixed, local.start]), 0, False, lab_map.domain, True)
+            run = self._local_run(local, lab_map, seed)
+        thread = threading.Thread(target=self._run, args=(job, run, lab_map.domain), name=f"synthesis-{job.id}", daemon=True)
         self._threads = [t for t in self._threads if t.is_alive()] + [thread]
         thread.start()
         return self.status()
@@ -202,7 +242,8 @@ class Synthesizer:
                 return False
             job.cancel.set()
             job.state, job.message = "cancelled", reason
-            return True
+        self.on_change()
+        return True
 
     def wait(self, timeout: float = 60.0) -> None:
         """Wait until no worker thread runs (tests, shutdown)."""
@@ -220,12 +261,35 @@ class Synthesizer:
             job.iteration = iteration
             if job.first_points_seconds is None:
                 job.first_points_seconds = time.perf_counter() - job.started
+        self.on_change()
 
-    def _run(self, job: Job, lab_map: Any, iterations: int | None) -> None:
+    @staticmethod
+    def _full_run(lab_map: Any, points: int, seed: int, iterations: int | None) -> Any:
+        """A full synthesis as ``run(progress) -> (PointSet, iterations)``."""
         from patternshop import api
 
+        def run(progress: Any) -> tuple[Any, int]:
+            result = api.synthesize(lab_map, points=points, seed=seed, iterations=iterations, progress=progress)
+            return result.points, result.iterations
+
+        return run
+
+    @staticmethod
+    def _local_run(local: LocalUpdate, lab_map: Any, seed: int) -> Any:
+        """A local update (the synthesiser warm-started on its window) as ``run(progress) -> (PointSet, iterations)``."""
+        from synthesis.points import PointSet
+        from synthesis.synthesize import points_per_ink_of
+
+        def run(progress: Any) -> tuple[Any, int]:
+            xy, iterations = local.run(seed, lambda done, frame: progress(done, local.iterations, frame))
+            return PointSet(xy, lab_map.domain, points_per_ink=points_per_ink_of(lab_map, len(xy))), iterations
+
+        return run
+
+    def _run(self, job: Job, run: Any, domain: tuple[float, float]) -> None:
+        """Run ``run(progress) -> (PointSet, iterations)`` for ``job``: publish its frames, save its points, make
+        them the next base; errors end the job with a one-line message."""
         last = [0.0]
-        domain = lab_map.domain
 
         def progress(done: int, total: int, xy: np.ndarray) -> None:
             if job.cancel.is_set():
@@ -237,7 +301,7 @@ class Synthesizer:
                 self._publish(job, xy.copy(), done, False, domain)
 
         try:
-            result = api.synthesize(lab_map, points=job.n, seed=job.seed, iterations=iterations, progress=progress)
+            points, iterations = run(progress)
         except _Cancelled:
             return
         except PatternshopError as exc:
@@ -253,20 +317,24 @@ class Synthesizer:
             return
         seconds = time.perf_counter() - job.started
         try:
-            self.project.save_points(result.points, job.version, {"seed": job.seed, "iterations": result.iterations,
-                                                                  "seconds": round(seconds, 3)})
+            self.project.save_points(points, job.version, {"seed": job.seed, "iterations": iterations,
+                                                           "seconds": round(seconds, 3), "count_key": list(job.count_key),
+                                                           "local": job.local})
         except (PatternshopError, OSError) as exc:
             self._fail(job, f"points not saved: {exc}")
             return
-        self._publish(job, result.points.xy, result.iterations, True, result.points.domain)
+        self._publish(job, points.xy, iterations, True, points.domain)
         with self.lock:
             if not job.cancel.is_set():
                 job.state, job.seconds = "done", seconds
+                self.base = Base(job.lab, points.xy, job.seed, job.count_key)
+        self.on_change()
 
     def _fail(self, job: Job, message: str) -> None:
         with self.lock:
             if not job.cancel.is_set():
                 job.state, job.message = "error", message
+        self.on_change()
 
     # --- queries -----------------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -278,7 +346,8 @@ class Synthesizer:
             return {"state": job.state, "job": job.id, "version": job.version, "n": job.n, "seed": job.seed,
                     "iteration": job.iteration, "total": job.total, "message": job.message,
                     "seconds": round(job.seconds if job.state == "done" else time.perf_counter() - job.started, 3),
-                    "first_points_seconds": None if job.first_points_seconds is None else round(job.first_points_seconds, 3)}
+                    "first_points_seconds": None if job.first_points_seconds is None else round(job.first_points_seconds, 3),
+                    "local": job.local}
 
     def frame_since(self, since: int) -> Frame | None:
         """The newest frame if it is newer than frame number ``since``, else None."""

@@ -175,6 +175,7 @@ class Project:
         self.state = self._load_state()
         self.lab: np.ndarray | None = None
         self.origin: np.ndarray | None = None
+        self._summary: dict[str, Any] | None = None  # summary() of the committed state, until the next commit
         if self.state["map"]:
             self.lab = _load_map_array(self.folder / self.state["map"])
             self.origin = _load_map_array(self.folder / self.state["origin"])
@@ -238,6 +239,7 @@ class Project:
         """Write ``state`` (the commit point), then adopt it and drop files it no longer refers to."""
         atomic_write_text(self.folder / STATE_NAME, json.dumps(state, indent=1))
         self.state = state
+        self._summary = None
         self._collect_garbage()
 
     # --- queries ---------------------------------------------------------------------------------------
@@ -255,18 +257,24 @@ class Project:
         return copy.deepcopy(self.state["settings"])
 
     def summary(self) -> dict[str, Any]:
-        """The JSON-ready state the page shows: map size, version, history, settings, last points."""
+        """The JSON-ready state the page shows: map size, version, history, settings, last points (built once per
+        committed state: the page polls it; callers must not change the nested values)."""
         with self.lock:
-            state = self.state
-            height, width = (self.lab.shape[:2] if self.lab is not None else (0, 0))
-            side = max(width, height, 1)
-            return {
-                "version": self.version, "name": state["name"], "width": width, "height": height,
-                "domain": [width / side, height / side], "offset": list(state["offset"]),
-                "can_undo": bool(state["undo"]), "can_redo": bool(state["redo"]),
-                "undo": [step["label"] for step in state["undo"]], "redo": [step["label"] for step in state["redo"]][::-1],
-                "settings": self.settings, "points": copy.deepcopy(state["points"]),
-            }
+            if self._summary is None:
+                self._summary = self._build_summary()
+            return dict(self._summary)
+
+    def _build_summary(self) -> dict[str, Any]:
+        state = self.state
+        height, width = (self.lab.shape[:2] if self.lab is not None else (0, 0))
+        side = max(width, height, 1)
+        return {
+            "version": self.version, "name": state["name"], "width": width, "height": height,
+            "domain": [width / side, height / side], "offset": list(state["offset"]),
+            "can_undo": bool(state["undo"]), "can_redo": bool(state["redo"]),
+            "undo": [step["label"] for step in state["undo"]], "redo": [step["label"] for step in state["redo"]][::-1],
+            "settings": self.settings, "points": copy.deepcopy(state["points"]),
+        }
 
     def current(self) -> tuple[np.ndarray, int]:
         """(the current map, its version); the array is never changed in place (edits make new ones)."""
@@ -316,6 +324,7 @@ class Project:
         del state["undo"][: max(0, len(state["undo"]) - self.history_limit)]
         self._commit(state)
         self.lab = lab
+        self._summary = None  # it shows the map's size
 
     def edit(self, edit: Any) -> dict[str, Any]:
         """Apply an edit (:func:`patternshop.studio.tools.apply_edit`) and record it; returns :meth:`summary`

@@ -17,10 +17,17 @@ Security, as Jupyter does it (:class:`Guard`):
   (files come in as uploads and go out as downloads; the project folder is the server's own).
 
 Errors are JSON ``{"error": "one line"}`` with a 4xx status; the project is untouched by a failed request.
+
+Progress is pushed by Server-Sent Events (``GET /api/events``, :func:`events`): the synthesizer's worker thread
+bumps a :class:`Changes` counter, which wakes each stream's ``asyncio.Event`` through
+``loop.call_soon_threadsafe``; the stream then sends what changed (a ``points`` event: a newer frame is
+available from ``points.bin``; a ``status`` event: the status line). Streams end when the client goes or the
+server stops (:attr:`Studio.stopping`; uvicorn waits for open responses before it exits).
 """
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 import io
 import json
@@ -29,14 +36,14 @@ import tempfile
 import threading
 import urllib.parse
 from pathlib import Path
-from typing import Any
+from typing import Any, AsyncIterator, Callable
 
 import numpy as np
 from starlette.applications import Starlette
 from starlette.background import BackgroundTask
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
-from starlette.responses import HTMLResponse, JSONResponse, Response
+from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
@@ -57,6 +64,8 @@ EXPORTS = {  # name -> (media type, what it needs)
     "points.npy": ("application/octet-stream", "points"), "points.svg": ("image/svg+xml", "points"),
     "points.png": ("image/png", "points"),
 }
+EVENT_HEARTBEAT = 15.0  # seconds between keep-alive comments on an idle event stream (proxies; a gone client)
+EVENT_STOP_CHECK = 0.5  # seconds between an idle event stream's looks at Studio.stopping
 CONTENT_SECURITY_POLICY = ("default-src 'self'; img-src 'self' blob: data:; style-src 'self'; script-src 'self'; "
                            "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'")
 
@@ -116,6 +125,44 @@ class Guard:
         return given is not None and hmac.compare_digest(given.encode(), self.token.encode())
 
 
+class Changes:
+    """A change counter that any thread bumps and event streams wait on without blocking the event loop."""
+
+    def __init__(self) -> None:
+        self.number = 0
+        self._lock = threading.Lock()
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = []
+
+    def bump(self) -> None:
+        """Count a change and wake every waiting stream (thread-safe)."""
+        with self._lock:
+            self.number += 1
+            waiters, self._waiters = self._waiters, []
+        for loop, event in waiters:
+            try:
+                loop.call_soon_threadsafe(event.set)
+            except RuntimeError:  # that stream's loop is closed
+                pass
+
+    async def wait(self, seen: int, timeout: float) -> bool:
+        """Wait until the counter differs from ``seen`` (True) or ``timeout`` seconds pass (False)."""
+        event = asyncio.Event()
+        waiter = (asyncio.get_running_loop(), event)
+        with self._lock:
+            if self.number != seen:
+                return True
+            self._waiters.append(waiter)
+        try:
+            await asyncio.wait_for(event.wait(), timeout)
+            return True
+        except asyncio.TimeoutError:
+            return False
+        finally:
+            with self._lock:
+                if waiter in self._waiters:
+                    self._waiters.remove(waiter)
+
+
 class Studio:
     """What the server holds: the project, the synthesizer, limits, and the palette (loaded once)."""
 
@@ -125,7 +172,9 @@ class Studio:
         self.token = token or secrets.token_urlsafe(24)
         self.max_upload_bytes = max_upload_bytes
         self.max_memory_gb = max_memory_gb
-        self.synthesizer = Synthesizer(project, max_memory_gb)
+        self.changes = Changes()  # bumped by the synthesizer: wakes the event streams
+        self.synthesizer = Synthesizer(project, max_memory_gb, on_change=self.changes.bump)
+        self.stopping: Callable[[], bool] = lambda: False  # serve(): True once the server is asked to stop
         self._palette_lock = threading.Lock()
         self._palette_png: bytes | None = None
         self._map_png: tuple[int, bytes] | None = None  # (version, sRGB PNG) of the current map
@@ -175,6 +224,8 @@ class Studio:
             text = f"Synthesizing: iteration {job['iteration']} of {job['total']} (n = {job['n']})"
         elif state == "done":
             text = f"Done: {job['n']} points in {job['seconds']:.1f} s"
+            if job["local"]:
+                text += f" (re-made locally: {job['local']['window_share']:.0%} of the map)"
             if job["version"] != summary["version"]:
                 text += " (the map has changed since)"
         elif state == "cancelled":
@@ -469,11 +520,17 @@ async def points_json(request: Request) -> Response:
     return JSONResponse(await run_in_threadpool(encode))
 
 
-def _frame_meta(studio: Studio, frame: Any) -> dict[str, Any]:
-    """What points.json and points.bin say about a frame besides its points."""
+def _frame_fields(frame: Any) -> dict[str, Any]:
+    """What the ``points`` event says about a frame: its number, job, map version, iteration, total, final,
+    preview, n, domain."""
     return {"frame": frame.number, "job": frame.job, "version": frame.version, "iteration": frame.iteration,
             "total": frame.total, "final": frame.final, "preview": frame.preview, "n": int(len(frame.xy)),
-            "domain": list(frame.domain), "status": studio.status()}
+            "domain": list(frame.domain)}
+
+
+def _frame_meta(studio: Studio, frame: Any) -> dict[str, Any]:
+    """What points.json and points.bin say about a frame besides its points."""
+    return {**_frame_fields(frame), "status": studio.status()}
 
 
 async def points_bin(request: Request) -> Response:
@@ -499,6 +556,45 @@ async def points_bin(request: Request) -> Response:
     return Response(np.ascontiguousarray(frame.xy, "<f4").tobytes(), media_type="application/octet-stream",
                     headers={"X-Points": json.dumps(_frame_meta(studio, frame)), "Cache-Control": "no-store"},
                     background=warm)
+
+
+async def events(request: Request) -> Response:
+    """Server-Sent Events (``text/event-stream``) for as long as the page keeps it open: ``points`` (a frame's
+    fields as points.bin's header gives them, without the status) when a newer frame of points is available,
+    then ``status`` (as ``GET /api/status``) when the status line or the job changes; both at once on connect.
+    The token comes as the ``token`` query parameter (EventSource cannot set headers)."""
+    return StreamingResponse(_event_stream(request.app.state.studio), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
+
+def _sse(event: str, data: Any) -> str:
+    return f"event: {event}\ndata: {json.dumps(data)}\n\n"
+
+
+async def _event_stream(studio: Studio) -> AsyncIterator[str]:
+    """The events of :func:`events`; waits on :attr:`Studio.changes` (never blocks the event loop), sends a
+    keep-alive comment every :data:`EVENT_HEARTBEAT` s when idle and ends when :attr:`Studio.stopping` says so.
+    A client that goes ends it at once (Starlette cancels it on uvicorn's disconnect message; under an ASGI 2.4
+    server, at the next write: the keep-alive bounds that)."""
+    yield "retry: 1000\n\n"  # the browser reconnects after 1 s if the stream breaks
+    seen, frame_sent, status_sent, idle = -1, 0, None, 0.0
+    while not studio.stopping():
+        if not await studio.changes.wait(seen, EVENT_STOP_CHECK):
+            idle += EVENT_STOP_CHECK
+            if idle >= EVENT_HEARTBEAT:
+                idle = 0.0
+                yield ": keep-alive\n\n"
+            continue
+        idle, seen = 0.0, studio.changes.number
+        frame = studio.synthesizer.latest_frame()
+        if frame is not None and frame.number != frame_sent:  # before the status: "done" follows the final points
+            frame_sent = frame.number
+            yield _sse("points", _frame_fields(frame))
+        status = studio.status()
+        key = json.dumps({**status, "job": {k: v for k, v in status["job"].items() if k != "seconds"}})
+        if key != status_sent:
+            status_sent = key
+            yield _sse("status", status)
 
 
 async def palette_info(request: Request) -> Response:
@@ -611,6 +707,7 @@ def create_app(studio: Studio, allowed_hosts: tuple[str, ...] = LOOPBACK_HOSTS) 
         Route("/api/points.txt", _handle(points_txt)),
         Route("/api/points.json", _handle(points_json)),
         Route("/api/points.bin", _handle(points_bin)),
+        Route("/api/events", _handle(events)),
         Route("/api/palette", _handle(palette_info)),
         Route("/api/palette.png", _handle(palette_png)),
         Route("/api/palette/example", _handle(palette_example)),
@@ -672,8 +769,10 @@ def serve(project: Project, *, host: str = "127.0.0.1", port: int = 8765, port_t
     studio.warm_up_on_load = True  # the page's first points request starts the warm-up (see points_bin)
     studio.synthesizer.warm_up(delay=3.0)  # or 3 s from now: the first synthesis then starts at once
     config = uvicorn.Config(app, log_level="warning", lifespan="off", access_log=False)
+    server = uvicorn.Server(config)
+    studio.stopping = lambda: server.should_exit  # ends the event streams, which uvicorn waits for when it stops
     try:
-        uvicorn.Server(config).run(sockets=[sock])
+        server.run(sockets=[sock])
     finally:
         studio.synthesizer.cancel("the server stopped")
         sock.close()

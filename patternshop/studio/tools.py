@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from synthesis.edits import density_gradient, expand
+from synthesis.edits import density_gradient, expand, rect_region, set_correlation
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 
@@ -165,20 +165,16 @@ def _brush(lab: np.ndarray, edit: dict, kind: str, origin: np.ndarray | None, of
 
 # --- the other edits ---------------------------------------------------------------------------------------
 def _rect_mask(shape: tuple[int, int], rect: Any) -> np.ndarray:
-    """Pixels whose centre lies in the rectangle [x0, y0, x1, y1]."""
+    """Pixels whose centre lies in the rectangle [x0, y0, x1, y1] (map pixels, corners in any order;
+    :func:`synthesis.edits.rect_region`)."""
     if not isinstance(rect, list) or len(rect) != 4:
         raise PatternshopError("rect is [x0, y0, x1, y1] in map pixels")
-    x0, y0 = _pair(rect[:2], "rect")
-    x1, y1 = _pair(rect[2:], "rect")
-    x0, x1 = sorted((x0, x1))
-    y0, y1 = sorted((y0, y1))
-    height, width = shape
-    mask = np.zeros(shape, bool)
-    j0, j1 = max(0, math.ceil(x0 - 0.5)), min(width, math.floor(x1 - 0.5) + 1)
-    i0, i1 = max(0, math.ceil(y0 - 0.5)), min(height, math.floor(y1 - 0.5) + 1)
-    if i0 < i1 and j0 < j1:
-        mask[i0:i1, j0:j1] = True
-    return mask
+    (x0, y0), (x1, y1) = _pair(rect[:2], "rect"), _pair(rect[2:], "rect")
+    (x0, x1), (y0, y1) = sorted((x0, x1)), sorted((y0, y1))
+    if x0 == x1 or y0 == y1:  # a click without a drag selects nothing
+        return np.zeros(shape, bool)
+    side = float(max(shape))
+    return rect_region(shape, (x0 / side, y0 / side, x1 / side, y1 / side)) > 0
 
 
 def _polygon_mask(shape: tuple[int, int], polygon: Any) -> np.ndarray:
@@ -226,9 +222,7 @@ def _fill(lab: np.ndarray, edit: dict) -> tuple[np.ndarray, str]:
         mask, label = _rect_mask(lab.shape[:2], edit["rect"]), "fill"
     else:
         raise PatternshopError("fill needs a selection: rect [x0, y0, x1, y1], polygon [[x, y], ...] or seed [x, y]")
-    out = lab.copy()
-    if ab is not None:
-        out[mask, 1:] = np.asarray(_ab(ab), np.float32)
+    out = lab.copy() if ab is None else np.array(set_correlation(LabMap(lab), _ab(ab), mask.astype(np.float32)).lab)
     if density is not None:
         out[mask, 0] = 100.0 * (1.0 - _number(edit, "density", 0.0, 1.0))
     return out, label

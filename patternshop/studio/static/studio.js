@@ -22,6 +22,8 @@ const S = {
   drag: null,         // a pan, rectangle or gradient drag
   queue: Promise.resolve(),
   polling: false,
+  events: null,       // the EventSource of GET /api/events; null: none (then progress is polled)
+  eventTasks: Promise.resolve(),  // what the events asked for, done in their order
   autoTimer: null,
   settingsTimer: null,
   pendingSettings: {},
@@ -494,12 +496,38 @@ async function synthesize() {
   const count = $("points-count").value.trim();
   if (count) body.points = Math.round(+count);
   body.seed = Math.round(+$("seed").value || 0);
+  setStatus("Starting a synthesis…");  // at once: the last one's "Done" is gone when the click returns
   await enqueue(async () => {
     try {
       const status = await api("/api/synthesize", {method: "POST", json: body});
-      setStatus(status.text);
-      startPolling();
+      if (!S.events) { setStatus(status.text); startPolling(); }  // else the events report it, in order
     } catch (error) { fail(error); }
+  });
+}
+
+// Progress comes by Server-Sent Events (GET /api/events): a "points" event says a newer frame is available (then
+// fetched from points.bin), a "status" event carries the status line; each is handled after the ones before it,
+// so "Done: N points" shows once the final points are drawn. Polling (startPolling) is only the fallback for when
+// the EventSource errors for good (the browser closed it: refused, or no event stream) or does not exist; while it
+// reconnects by itself (a dropped connection), the stream's first events on reconnecting bring the page up to date.
+function listenForProgress() {
+  if (!window.EventSource) return;
+  const source = new EventSource(withToken("/api/events"));
+  S.events = source;
+  const then = (task) => { S.eventTasks = S.eventTasks.then(task).catch(fail); };
+  source.addEventListener("points", (event) => {
+    const frame = JSON.parse(event.data);
+    then(async () => {
+      if (frame.frame <= S.frame) return;
+      const newer = await fetchPoints(S.frame);
+      if (newer.points) showPoints(newer);
+    });
+  });
+  source.addEventListener("status", (event) => { const status = JSON.parse(event.data); then(() => showStatus(status)); });
+  source.addEventListener("error", () => {
+    if (source.readyState !== EventSource.CLOSED) return;  // the browser reconnects by itself
+    S.events = null;  // the fallback: polling from now on
+    refreshStatus();  // polls if a synthesis runs
   });
 }
 
@@ -547,13 +575,17 @@ function updatePointsPlaceholder() {
   $("points-count").placeholder = `auto: ${Math.round((perInk * ink) / (lab.length / 3))}`;
 }
 
+function showStatus(status) {  // a status as GET /api/status gives it
+  setStatus(status.text, status.job && status.job.state === "error");
+  $("undo").disabled = !status.can_undo;
+  $("redo").disabled = !status.can_redo;
+}
+
 async function refreshStatus() {
   try {
     const status = await api("/api/status");
-    setStatus(status.text, status.job && status.job.state === "error");
-    $("undo").disabled = !status.can_undo;
-    $("redo").disabled = !status.can_redo;
-    if (status.job && status.job.state === "running") startPolling();
+    showStatus(status);
+    if (status.job && status.job.state === "running" && !S.events) startPolling();
   } catch (error) { fail(error); }
 }
 
@@ -816,7 +848,8 @@ async function start() {
     await palette;
     const frame = await points;
     if (frame.points) showPoints(frame);
-    if (state.status.job.state === "running") startPolling();
+    listenForProgress();  // after the state above: its first events are the state now
+    if (state.status.job.state === "running" && !S.events) startPolling();
     document.body.dataset.ready = "true";  // for tests: the page has its state
     if (S.presets) hoverPalette(S.settings.ab);  // the current colour's pattern: not needed to start working
   } catch (error) { fail(error); }
