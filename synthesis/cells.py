@@ -77,29 +77,6 @@ def _scan(sorted_xy, order, start, cell, nx, ny, box, periodic, centres, reach, 
             offsets[q + 1] = found  # a count, cumulated by the caller
 
 
-@numba.njit(parallel=True, cache=True)
-def _any_within(sorted_xy, order, start, cell, nx, ny, centres, reach, exclude, found):  # pragma: no cover - jitted
-    r2 = reach * reach
-    for q in numba.prange(len(centres)):
-        x, y = centres[q, 0], centres[q, 1]
-        lo_x, hi_x = max(int(math.floor((x - reach) / cell[0])), 0), min(int(math.floor((x + reach) / cell[0])), nx - 1)
-        lo_y, hi_y = max(int(math.floor((y - reach) / cell[1])), 0), min(int(math.floor((y + reach) / cell[1])), ny - 1)
-        hit = False
-        for iy in range(lo_y, hi_y + 1):
-            for ix in range(lo_x, hi_x + 1):
-                c = iy * nx + ix
-                for p in range(start[c], start[c + 1]):
-                    dx, dy = sorted_xy[p, 0] - x, sorted_xy[p, 1] - y
-                    if dx * dx + dy * dy < r2 and order[p] != exclude[q]:
-                        hit = True
-                        break
-                if hit:
-                    break
-            if hit:
-                break
-        found[q] = hit
-
-
 class CellGrid:
     """Points (n, 2) in ``[0, w] x [0, h]`` binned into cells of side about ``cell`` for radius queries.
 
@@ -147,17 +124,3 @@ class CellGrid:
         distance = workspace.empty("query.distance", offsets[-1]) if distances else np.empty(0)
         _scan(*args, index, distance, True)
         return offsets, index, distance if distances else None
-
-    def has_neighbour(self, centres: np.ndarray, reach: float, exclude: np.ndarray) -> np.ndarray:
-        """(C,) bool: another point lies closer than ``reach`` to each centre (C, 2); not periodic.
-
-        ``exclude`` (C,): the point index each centre leaves out (itself). Each scan stops at
-        the first point found, so piles of identical points cost no more than single ones.
-        """
-        if self.periodic:
-            raise ValueError("has_neighbour works on non-periodic grids only")
-        centres = np.ascontiguousarray(centres, np.float64).reshape(-1, 2)
-        found = np.empty(len(centres), np.bool_)
-        _any_within(self.sorted_xy, self.order, self.start, self.cell, self.nx, self.ny, centres, float(reach),
-                    np.ascontiguousarray(exclude, np.int32), found)
-        return found

@@ -28,11 +28,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from synthesis.cells import CellGrid
 from synthesis.errors import PatternshopError
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
+
+    from synthesis.cells import CellGrid
 
 PCF_BINS = 52
 BIN_WIDTH = 0.05  # in units of r_max: radii 0, 0.05, ..., 2.55
@@ -109,6 +110,8 @@ def _stationary_centres(points: np.ndarray, domain: tuple[float, float], periodi
     Periodic: all points of the wrapped pattern on the torus. Otherwise minus
     sampling: the points at least ``reach`` from every border.
     """
+    from synthesis.cells import CellGrid  # here: numba's import (0.1 s) stays out of infer, which needs only r_max
+
     points = np.asarray(points, np.float64)
     w, h = domain
     if periodic:

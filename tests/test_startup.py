@@ -15,9 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from synthesis.analysis import coincident_points
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
 from synthesis.palette import DEFAULT_PALETTE, Palette
+from synthesis.pcf import r_max
+from synthesis.points import PointSet
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAVY_MODULES = ("torch", "matplotlib", "sklearn")  # decoding, plotting and training only
@@ -82,3 +85,41 @@ def test_a_damaged_table_is_a_palette_error_when_it_is_read(tmp_path):
         palette.components  # noqa: B018
     with pytest.raises(PatternshopError, match="dispersion_lut missing"):
         Palette.load(short)
+
+
+def test_infer_degeneracy_check_leaves_numba_unimported():
+    code = ("import sys\n"
+            "import export.runtime\n"
+            "from synthesis.analysis import check_not_degenerate\n"
+            "from synthesis.points import read_points\n"
+            f"check_not_degenerate(read_points({str(ROOT / 'examples' / 'logo_points.txt')!r}))\n"
+            "print('numba' in sys.modules, 'synthesis.cells' in sys.modules)\n")
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split("\n")[-2] == "False False"
+
+
+def _coincident_by_pairs(xy: np.ndarray, domain: tuple[float, float]) -> int:
+    """Plain reference of :func:`coincident_points`: all pairwise distances, occupied cells counted in a set."""
+    n, (w, h) = len(xy), domain
+    side = float(r_max(n, w * h))
+    nx, ny = int(np.ceil(w / side)), int(np.ceil(h / side))
+    cells = {(min(max(int(x / side), 0), nx - 1), min(max(int(y / side), 0), ny - 1)) for x, y in xy}
+    reach = 0.05 * float(r_max(n, min(len(cells) * side * side, w * h)))
+    distance = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    np.fill_diagonal(distance, np.inf)
+    return int(np.count_nonzero(distance.min(axis=1) < reach))
+
+
+@pytest.mark.parametrize("case", ["poisson", "small_patch", "pile", "grid", "wide"])
+def test_coincident_points_match_all_pairs(case):
+    rng = np.random.default_rng(3)
+    domain = (1.0, 0.25) if case == "wide" else (1.0, 1.0)
+    xy = {"poisson": rng.random((1500, 2)),
+          "small_patch": 0.45 + 0.1 * rng.random((1500, 2)),
+          "pile": np.concatenate([np.full((700, 2), 0.5), rng.random((800, 2))]),
+          "grid": np.round(rng.random((1500, 2)) * 30) / 30,
+          "wide": rng.random((1500, 2)) * domain}[case]
+    expected = _coincident_by_pairs(xy, domain)
+    assert expected > 0  # every case has close pairs: the comparison is not vacuous
+    assert coincident_points(PointSet(xy, domain)) == expected
