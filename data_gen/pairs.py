@@ -49,6 +49,9 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
   is zoomed by ``sqrt(ppi / P)`` (a random window upsampled; ``infer`` draws such a pattern that many times
   larger), below P its density is multiplied by ``ppi / P`` (how the points of a light area at P look, the
   same spacing; ``infer`` read light areas at up to 64 times fewer points per ink). Items and key unchanged at 0.
+  With ``scale.lighten_synthesis: false`` only other methods' items are lightened (their labels are measured
+  from their points); the synthesiser's are drawn at P instead, since with a few dozen points it cannot realise
+  the correlation its label asks for (network v6 read light Poisson points as blue). Default true: key unchanged.
 * Dark content: with ``dense.share`` > 0, that share of the other
   maps is darkened towards full ink, ``1 - density`` multiplied by a factor
   drawn log-uniformly in ``dense.scale``, so that nearly full ink, rare in the
@@ -99,7 +102,7 @@ class PairSettings:
     sparse: dict  # {"share", "scale": [lo, hi], "holes", "empty_share"} (see the module docstring)
     dense: dict  # {"share", "scale": [lo, hi]} (see the module docstring)
     textures: dict  # {"share", "kinds": {name: weight}} (see the module docstring)
-    scale: dict  # {"share", "points_per_ink": [lo, hi]} (see the module docstring)
+    scale: dict  # {"share", "points_per_ink": [lo, hi], "lighten_synthesis"} (see the module docstring)
 
     @classmethod
     def from_config(cls, cfg) -> PairSettings:  # noqa: ANN001 - omegaconf.DictConfig
@@ -135,6 +138,8 @@ class PairSettings:
             del content["textures"]
         if not self.scale["share"]:
             del content["scale"]
+        elif self.scale["lighten_synthesis"]:  # folders made before this option keep their key
+            content["scale"] = {k: v for k, v in self.scale.items() if k != "lighten_synthesis"}
         if not (self.sparse["share"] or self.sparse["empty_share"]):
             del content["sparse"]
         if not self.dense["share"]:
@@ -210,14 +215,14 @@ def texture_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Gene
 
 
 def scale_setting(config: dict) -> dict:
-    """``scale`` config -> {"share", "points_per_ink": [lo, hi]} checked (share in [0, 1], 0 < lo <= hi)."""
+    """``scale`` config -> {"share", "points_per_ink": [lo, hi], "lighten_synthesis"} checked (share in [0, 1], 0 < lo <= hi)."""
     share = float(config.get("share", 0.0))
     low, high = (float(value) for value in config.get("points_per_ink", (125.0, 512000.0)))
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"scale.share must be in [0, 1], got {share:g}")
     if not 0.0 < low <= high:
         raise ValueError(f"scale.points_per_ink needs 0 < lo <= hi, got [{low:g}, {high:g}]")
-    return {"share": share, "points_per_ink": [low, high]}
+    return {"share": share, "points_per_ink": [low, high], "lighten_synthesis": bool(config.get("lighten_synthesis", True))}
 
 
 def zoom_window(lab: np.ndarray, zoom: float, rng: np.random.Generator) -> np.ndarray:
@@ -232,15 +237,18 @@ def zoom_window(lab: np.ndarray, zoom: float, rng: np.random.Generator) -> np.nd
     return np.stack([map_coordinates(lab[..., k], [grid_r, grid_c], order=1, mode="nearest") for k in range(3)], -1)
 
 
-def scale_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> tuple[LabMap, float]:
+def scale_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator,
+                  lighten: bool = True) -> tuple[LabMap, float]:
     """(map, points per ink the item is drawn at): for a ``scale.share`` of the items a points per ink drawn
     log-uniformly in ``scale.points_per_ink``, the map zoomed above ``synthesis.points_per_ink`` and lightened
-    below it (see the module docstring); otherwise the map and ``synthesis.points_per_ink``.
-    Draws from ``rng`` only when the share is > 0."""
+    below it (see the module docstring); otherwise, or below it with ``lighten`` false, the map and
+    ``synthesis.points_per_ink``. Draws from ``rng`` only when the share is > 0."""
     share, base = settings.scale["share"], settings.points_per_ink
     if not share or rng.random() >= share:
         return lab_map, base
     drawn = log_uniform_factor(rng, settings.scale["points_per_ink"])
+    if drawn < base and not lighten:
+        return lab_map, base
     if drawn >= base:
         lab = zoom_window(np.asarray(lab_map.lab, np.float64), float(np.sqrt(drawn / base)), rng)
         scaled = LabMap(lab.astype(np.float32))
@@ -280,16 +288,23 @@ def density_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Gene
     return target_to_map(map_to_target(LabMap.from_density_latent(density, lab_map.latent())))  # 8-bit, as stored
 
 
-def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap, n: int,
-                        rng: np.random.Generator) -> tuple[LabMap, np.ndarray, str] | None:
+def draw_other(settings: PairSettings, rng: np.random.Generator) -> bool:
+    """Whether an item is drawn as another method's (an ``other_methods.share`` of them); draws only when the share is > 0."""
+    share = settings.other_methods["share"]
+    return bool(share) and rng.random() < share
+
+
+def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap, n: int, rng: np.random.Generator,
+                        chosen: bool | None = None) -> tuple[LabMap, np.ndarray, str] | None:
     """(map with the method's preset a, b, its points (n, 2), method name) for an item drawn as another method's, else None.
 
-    Draws from ``rng`` only when ``other_methods.share`` > 0, so the items of share-0 folders are unchanged.
+    ``chosen``: :func:`draw_other`'s answer when drawn before, else drawn here. Draws from ``rng`` only when
+    ``other_methods.share`` > 0, so the items of share-0 folders are unchanged.
     """
     from data_gen.stipplers import FROZEN_METHODS, LABELS, METHODS
 
-    share, weights = settings.other_methods["share"], settings.other_methods["methods"]
-    if not share or rng.random() >= share:
+    weights = settings.other_methods["methods"]
+    if not (draw_other(settings, rng) if chosen is None else chosen):
         return None
     from data_gen.makers.textures import choose
 
@@ -311,7 +326,8 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
 
     rng = np.random.default_rng([settings.seed, item])
     lab_map = texture_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
-    lab_map, drawn_points_per_ink = scale_variant(settings, lab_map, rng)
+    other_first = None if settings.scale["lighten_synthesis"] else draw_other(settings, rng)  # lighten measured labels only
+    lab_map, drawn_points_per_ink = scale_variant(settings, lab_map, rng, lighten=other_first is not False)
     lab_map = density_variant(settings, lab_map, rng)
     target = map_to_target(lab_map)
     try:
@@ -320,7 +336,7 @@ def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
         n = 0
     if n == 1:
         raise SourceError(f"{maker.source(item)}: only {n} point(s) at points_per_ink={settings.points_per_ink:g}")
-    other = other_method_points(settings, maker, lab_map, n, rng) if n else None
+    other = other_method_points(settings, maker, lab_map, n, rng, other_first) if n else None
     if n == 0:  # an empty item (sparse.empty_share, or a map lightened below one point)
         xy = np.zeros((0, 2), np.float32)
         meta = {"item": item, "source": maker.source(item), "n": 0, "method": "empty"}

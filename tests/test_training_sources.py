@@ -129,6 +129,28 @@ def test_scale_zooms_the_map_above_the_base_and_lightens_it_below():
             assert scaled.density().mean() == pytest.approx(lab_map.density().mean(), abs=0.01)
 
 
+def test_without_lighten_synthesis_only_measured_labels_are_lightened():
+    """v6 read light Poisson points as blue: its synthesised items lightened to a few dozen points kept labels the
+    synthesiser cannot realise. With scale.lighten_synthesis=false only other methods' items are drawn below the base."""
+    from data_gen.pairs import make_pair
+
+    def drawn(lighten: bool) -> list[tuple[str, float]]:
+        settings = PairSettings.from_config(compose_config("pairs", [
+            "map_size=32", "raster_size=32", "synthesis.points_per_ink=1000", "synthesis.iterations=2", "scale.share=1.0",
+            "scale.points_per_ink=[100,10000]", "other_methods.share=0.5",
+            f"scale.lighten_synthesis={str(lighten).lower()}"]))
+        maker = build_maker(settings.dataset, settings.map_size, settings.palette)
+        metas = [make_pair(settings, maker, item).meta[0] for item in range(24)]
+        return [(meta["method"], meta["points_per_ink"] / settings.points_per_ink) for meta in metas if meta["n"]]
+
+    fixed, old = drawn(False), drawn(True)
+    assert all(ratio >= 1 for method, ratio in fixed if method == "synthesis")
+    assert any(ratio < 1 for method, ratio in fixed if method != "synthesis")  # measured labels are still lightened
+    assert any(ratio < 1 for method, ratio in old if method == "synthesis")  # what the option turns off
+    assert scale_settings().key() == PairSettings.from_config(compose_config(
+        "pairs", ["map_size=32", "scale.share=1.0", "scale.lighten_synthesis=true"])).key()  # v6's folder keeps its key
+
+
 def lattice_angle(xy: np.ndarray, period: float) -> float:
     """Orientation (radians, modulo the lattice's rotational period) of the nearest-neighbour vectors of xy (k, 2)."""
     from scipy.spatial import cKDTree
