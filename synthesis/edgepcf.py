@@ -283,15 +283,15 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     sloped = denominator.sloped
     expected_slope = sample_grid(fields.target, xy[sloped], fields.side_px)[..., None] * denominator.slopes
     dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
-    variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * np.cumsum(expected_slope, axis=1),
-                                     fields.radii)
+    cumulative = np.cumsum(expected_slope, axis=1)
+    variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * cumulative, fields.radii)
     hood = Neighbourhoods(offsets, neighbours, guide, spacing, xy.copy(), fields.target, fields.side_px, denominator, sloped,
                           expected_slope, variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular,
                           structured)
     observed, hood.window_expected = window_sums(hood, xy, workspace)
     if len(sloped):
-        cumulative = np.cumsum(expected_slope, axis=1) * slope_levels(hood, observed, hood.window_expected)[..., None]
-        hood.expected_slope = np.diff(cumulative, axis=1, prepend=0.0)
+        levelled = cumulative * slope_levels(hood, observed, hood.window_expected)[..., None]
+        hood.expected_slope = np.diff(levelled, axis=1, prepend=0.0)
     return hood
 
 

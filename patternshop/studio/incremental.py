@@ -117,15 +117,20 @@ def _pixels_of(xy: np.ndarray, side_px: int, shape: tuple[int, int]) -> tuple[np
     return row, col
 
 
+def _box(mask: np.ndarray, reach: int) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1): the bounding box of the (H, W) bool ``mask`` (not all False) widened by ``reach`` pixels,
+    clipped to the mask."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    return (max(0, rows[0] - reach), min(mask.shape[0], rows[-1] + reach + 1),
+            max(0, cols[0] - reach), min(mask.shape[1], cols[-1] + reach + 1))
+
+
 def _dilate(mask: np.ndarray, radius: float) -> np.ndarray:
     """(H, W) bool: pixels within ``radius`` pixels (Euclidean, centre to centre) of ``mask``, computed on the
     mask's bounding box widened by the radius."""
     from scipy import ndimage  # not at import: the server's start would pay 0.2 to 0.4 s for it
 
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    reach = int(math.ceil(radius))
-    y0, y1 = max(0, rows[0] - reach), min(mask.shape[0], rows[-1] + reach + 1)
-    x0, x1 = max(0, cols[0] - reach), min(mask.shape[1], cols[-1] + reach + 1)
+    y0, y1, x0, x1 = _box(mask, int(math.ceil(radius)))
     out = np.zeros_like(mask)
     out[y0:y1, x0:x1] = ndimage.distance_transform_edt(~mask[y0:y1, x0:x1]) <= radius
     return out
@@ -150,10 +155,7 @@ def plan_local_update(base: Base, lab: np.ndarray, n: int, seed: int, count_key:
     spacing_px = mean_spacing_px / math.sqrt(max(around / max(float(density.mean()), 1e-12), SPARSE_FLOOR))
     region = _dilate(changed, REGION_SPACINGS * spacing_px)
     band = _dilate(region, BAND_SPACINGS * spacing_px)
-    rows, cols = np.flatnonzero(band.any(axis=1)), np.flatnonzero(band.any(axis=0))
-    reach = int(math.ceil(CONTEXT_SPACINGS * spacing_px))
-    y0, y1 = max(0, rows[0] - reach), min(height, rows[-1] + reach + 1)
-    x0, x1 = max(0, cols[0] - reach), min(width, cols[-1] + reach + 1)
+    y0, y1, x0, x1 = _box(band, int(math.ceil(CONTEXT_SPACINGS * spacing_px)))
     window_share = (y1 - y0) * (x1 - x0) / (height * width)
     if window_share > max_window_share:
         return None
@@ -170,8 +172,7 @@ def plan_local_update(base: Base, lab: np.ndarray, n: int, seed: int, count_key:
         new_points = (inside * side_window + (x0, y0)) / side_px
     kept = in_window & ~dropped
     start = np.concatenate([base.xy[kept], new_points])
-    krow, kcol = _pixels_of(base.xy[kept], side_px, (height, width))
-    refined = np.concatenate([band[krow, kcol], np.ones(len(new_points), bool)])
+    refined = np.concatenate([band[row[kept], col[kept]], np.ones(len(new_points), bool)])
     return LocalUpdate(window_map, (int(y0), int(y1), int(x0), int(x1)), side_px,
                        base.xy[~in_window], start, refined, len(new_points), SCHEDULES["fast"].iterations,
                        float(changed.mean()), float(window_share))
