@@ -497,7 +497,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
                         symmetries=symmetries)
     if l_scale is None:
         return read_v5_stages(points, model, reading, density, fill_thin, sharpen, denoise, config)
-    return smooth_reading(reading, density, l_scale, ink, calibrate and denoise and len(points) > 0, config)
+    return smooth_reading(reading, density, l_scale, ink, calibrate and denoise, config)
 
 
 def check_palette(model: OnnxModel, palette_file: PathLike | None = None) -> None:

@@ -67,7 +67,7 @@ class Pix2PixModule(L.LightningModule):
 
     def _generate(self, raster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(map (B, 3, S, S), Laplace scale of L (B, 1, S, S) or None without the head)."""
-        if self.hparams.get("l_scale", False):
+        if self.generator.l_scale:
             return self.generator.forward_with_scale(raster)
         return self.generator(raster), None
 
@@ -82,7 +82,7 @@ class Pix2PixModule(L.LightningModule):
 
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams
-        head = list(self.generator.scale.parameters()) if hp.get("l_scale", False) else []
+        head = list(self.generator.scale.parameters()) if self.generator.l_scale else []
         rest = [p for p in self.generator.parameters() if all(p is not q for q in head)]
         groups = [{"params": rest}] + ([{"params": head, "lr": hp.get("l_scale_lr", hp.lr)}] if head else [])
         optimizers = [torch.optim.Adam(groups, lr=hp.lr, betas=tuple(hp.betas)),

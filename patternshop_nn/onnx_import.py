@@ -160,7 +160,7 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
 
     module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest"})
     hp = module.hparams
-    generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, bool(hp.get("l_scale", False)))
+    generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, module.generator.l_scale)
     if rasters is not None:
         calibrate_folded_norms(generator, rasters)
     module.generator.load_state_dict(generator.state_dict())
