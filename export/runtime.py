@@ -61,7 +61,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from PIL import Image
 
 from export.density import REGULAR_NOISE_SHARE, denoise_density, poisson_resample, sharpen_density
 from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
@@ -70,7 +69,7 @@ from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES, InferConfig
 from export.uncertainty import smooth_by_uncertainty
 from synthesis.conventions import full_ink_points
 from synthesis.errors import PatternshopError, PatternshopWarning, require_file
-from synthesis.labmap import POINTS_PER_INK, LabMap
+from synthesis.labmap import POINTS_PER_INK, LabMap, resample_channel, resample_map
 from synthesis.points import PointSet
 from synthesis.raster import point_raster
 
@@ -316,22 +315,6 @@ def predict_symmetric(model: OnnxModel, raster: np.ndarray, symmetries: int) -> 
         output = dihedral(model.predict_outputs(np.ascontiguousarray(dihedral(raster, code))[None, None])[0], code, inverse=True)
         total = np.array(output, np.float32) if total is None else np.add(total, output, out=total)
     return total if symmetries == 1 else total / np.float32(symmetries)
-
-
-def resample_channel(channel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) float32 of a channel (h, w) resampled to ``shape`` (H, W) as :func:`synthesis.edits.resize` does (bilinear,
-    antialiased when shrinking; not imported from there, which would bring numba into ``infer``'s start-up)."""
-    if channel.shape == shape:
-        return np.asarray(channel, np.float32)
-    image = Image.fromarray(np.ascontiguousarray(channel, np.float32)).resize((shape[1], shape[0]), Image.Resampling.BILINEAR)
-    return np.asarray(image, np.float32)
-
-
-def resample_map(lab_map: LabMap, shape: tuple[int, int]) -> LabMap:
-    """The map resampled to ``shape`` (H, W), channel by channel (:func:`resample_channel`)."""
-    if lab_map.L.shape == shape:
-        return lab_map
-    return LabMap(np.stack([resample_channel(lab_map.lab[..., c], shape) for c in range(3)], axis=-1))
 
 
 def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shape: tuple[int, int], symmetries: int,

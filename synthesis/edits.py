@@ -16,7 +16,7 @@ import numpy as np
 from PIL import Image
 
 from synthesis.errors import PatternshopError, require_file
-from synthesis.labmap import AB_RANGE, L_RANGE, LabMap
+from synthesis.labmap import AB_RANGE, L_RANGE, LabMap, resample_map
 from synthesis.patchfill import content_aware_fill
 from synthesis.photo import _reading, check_ab
 
@@ -159,6 +159,4 @@ def resize(lab_map: LabMap, width: int, height: int | None = None) -> LabMap:
     if width < 1 or (height is not None and height < 1):
         raise PatternshopError(f"width and height must be at least 1 pixel, got {width} and {height}")
     height = height if height is not None else max(1, round(width * lab_map.height / lab_map.width))
-    channels = [Image.fromarray(np.ascontiguousarray(lab_map.lab[..., c])).resize((width, height), Image.Resampling.BILINEAR)
-                for c in range(3)]
-    return LabMap(np.stack([np.asarray(c, np.float32) for c in channels], axis=-1))
+    return resample_map(lab_map, (height, width))

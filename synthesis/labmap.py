@@ -151,3 +151,18 @@ class LabMap:
     def __repr__(self) -> str:
         w, h = self.domain
         return f"LabMap({self.width}x{self.height} px, domain {w:.4g} x {h:.4g})"
+
+
+def resample_channel(channel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) float32 of a channel (h, w) resampled to ``shape`` (H, W): bilinear, antialiased when shrinking."""
+    if channel.shape == shape:
+        return np.asarray(channel, np.float32)
+    from PIL import Image
+
+    image = Image.fromarray(np.ascontiguousarray(channel, np.float32)).resize((shape[1], shape[0]), Image.Resampling.BILINEAR)
+    return np.asarray(image, np.float32)
+
+
+def resample_map(lab_map: LabMap, shape: tuple[int, int]) -> LabMap:
+    """A new map: ``lab_map`` resampled to ``shape`` (H, W), channel by channel (:func:`resample_channel`)."""
+    return LabMap(np.stack([resample_channel(lab_map.lab[..., c], shape) for c in range(3)], axis=-1))
