@@ -166,3 +166,12 @@ def resample_channel(channel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 def resample_map(lab_map: LabMap, shape: tuple[int, int]) -> LabMap:
     """A new map: ``lab_map`` resampled to ``shape`` (H, W), channel by channel (:func:`resample_channel`)."""
     return LabMap(np.stack([resample_channel(lab_map.lab[..., c], shape) for c in range(3)], axis=-1))
+
+
+def pixels_of(xy: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(row, col) int64 arrays (n,): the pixel of a map of ``shape`` (H, W) that each (n, 2) point in domain units
+    (long side 1, origin top-left) lies in, clipped to the map."""
+    side = max(shape)
+    col = np.clip((xy[:, 0] * side).astype(np.int64), 0, shape[1] - 1)
+    row = np.clip((xy[:, 1] * side).astype(np.int64), 0, shape[0] - 1)
+    return row, col

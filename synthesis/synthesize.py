@@ -70,7 +70,7 @@ import numpy as np
 from synthesis.conventions import POINTS_PER_INK, full_ink_points
 from synthesis.errors import PatternshopError, PatternshopWarning
 from synthesis.fields import DenominatorTracker, MapFields, sample_grid
-from synthesis.labmap import LabMap
+from synthesis.labmap import LabMap, pixels_of
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
 from synthesis.workspace import Workspace
@@ -216,11 +216,9 @@ def redrawn_start(lab_map: LabMap, xy: np.ndarray, region: np.ndarray, seed: int
     if mask.shape != (lab_map.height, lab_map.width):
         raise PatternshopError(f"region is {mask.shape[::-1]} pixels, the map {lab_map.width} x {lab_map.height}")
     xy = checked_start_points(xy, None, lab_map.domain) if len(xy) else np.zeros((0, 2))
-    side = max(lab_map.width, lab_map.height)
 
     def edited(points: np.ndarray) -> np.ndarray:
-        rows = np.clip((points[:, 1] * side).astype(np.int64), 0, lab_map.height - 1)
-        return mask[rows, np.clip((points[:, 0] * side).astype(np.int64), 0, lab_map.width - 1)]
+        return mask[pixels_of(points, mask.shape)]
 
     kept = xy[~edited(xy)]
     density = lab_map.density()

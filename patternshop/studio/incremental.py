@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from synthesis.labmap import LabMap
+from synthesis.labmap import LabMap, pixels_of
 
 REGION_SPACINGS = 2.0  # the changed pixels dilated by this many local spacings: points re-drawn there
 BAND_SPACINGS = 3.0  # the region dilated by this many more: kept points refined with the new ones
@@ -110,13 +110,6 @@ def changed_pixels(before: np.ndarray, after: np.ndarray) -> np.ndarray | None:
     return np.any(before != after, axis=2)
 
 
-def _pixels_of(xy: np.ndarray, side_px: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """(row, col) int arrays: the pixel each (n, 2) point lies in."""
-    col = np.clip((xy[:, 0] * side_px).astype(np.int64), 0, shape[1] - 1)
-    row = np.clip((xy[:, 1] * side_px).astype(np.int64), 0, shape[0] - 1)
-    return row, col
-
-
 def _box(mask: np.ndarray, reach: int) -> tuple[int, int, int, int]:
     """(y0, y1, x0, x1): the bounding box of the (H, W) bool ``mask`` (not all False) widened by ``reach`` pixels,
     clipped to the mask."""
@@ -159,7 +152,7 @@ def plan_local_update(base: Base, lab: np.ndarray, n: int, seed: int, count_key:
     window_share = (y1 - y0) * (x1 - x0) / (height * width)
     if window_share > max_window_share:
         return None
-    row, col = _pixels_of(base.xy, side_px, (height, width))
+    row, col = pixels_of(base.xy, (height, width))
     dropped = region[row, col]
     in_window = (row >= y0) & (row < y1) & (col >= x0) & (col < x1)
     window_map = LabMap(np.ascontiguousarray(lab[y0:y1, x0:x1]))
