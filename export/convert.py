@@ -10,12 +10,16 @@ caller to report. Outputs are written atomically, named after the input
   each and infers its map as ``infer`` does (:func:`export.runtime.infer_map`,
   scale chosen from the pattern unless given; but
   :attr:`~export.infer_config.InferConfig.convert_symmetries` readings per map, one, where ``infer``
-  averages more) and writes a CIELAB TIFF. The network is nearly all the work (about 80 ms
-  of one core per reading of a 20k-point file at the default scale, a
-  704 x 704 px raster: 640 px of domain and the mirrored border; a model with
-  ``l_scale`` reads a file once, one without three or more times: the pattern,
-  the two resamplings of the denoising, light areas' zooms), so N workers on N
-  idle cores go about N times as fast as one.
+  averages more) and writes a CIELAB TIFF. Files go to the workers one or a few
+  at a time (:func:`_chunks`), so that they end together. For a 20k-point file
+  at 41,912 points per ink (a 704 x 704 px raster: 586 px of domain and the
+  mirrored border) a model with ``l_scale`` reads the file once: about 0.19 s of
+  one core, of which the network 0.10-0.11 s, the smoothing 0.034 s, the
+  degeneracy check 0.011-0.016 s, reading 0.013 s, writing 0.008 s, the
+  water-filling 0.008 s (``bench/bench_infer.py``, section 3); a
+  model without it three or more times (the pattern, the two resamplings of the
+  denoising, light areas' zooms). N workers on N idle cores go about N times as
+  fast as one, once started (about 0.5 s of one core each: imports, the ONNX session).
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
 
@@ -217,6 +221,17 @@ class _InferenceSettings:
     config: InferConfig  # the constants around the network
 
 
+BALANCE_TASKS = 16  # tasks per worker process at least, while there are files: the workers end together
+
+
+def _chunks(jobs: list[_Job], batch_size: int, processes: int) -> list[list[_Job]]:
+    """The jobs in tasks of at most ``batch_size`` files, smaller in a short run: at least :data:`BALANCE_TASKS` per
+    process while there are files, so that no worker idles at the end while another converts a whole batch (40 files
+    in batches of 8 on 2 workers went 24 to one worker and 16 to the other)."""
+    size = max(1, min(batch_size, len(jobs) // (BALANCE_TASKS * processes)))
+    return [jobs[i : i + size] for i in range(0, len(jobs), size)]
+
+
 def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxModel | None = None) -> list[tuple[int, FileResult]]:
     """Infer and write the map of each point file of a chunk -> (job index, result) pairs.
 
@@ -265,7 +280,7 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
 
     Args:
         model: the :class:`~export.runtime.OnnxModel` (each worker loads its file with its thread count).
-        batch_size: point files per worker task.
+        batch_size: point files per worker task at most (fewer in a short run, :func:`_chunks`).
         workers: processes, each doing the whole work for its files (1: this process).
         overwrite: replace existing outputs (default: skip their inputs).
         points_per_ink: points per unit area of full ink at the patterns' scale; None takes it per file as ``infer``
@@ -284,7 +299,7 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
     processes = _processes(workers, math.ceil(len(jobs) / batch_size), scheduler, jobs)
     settings = _InferenceSettings(points_per_ink, bits, memory_limit / processes,
                                   config.convert_symmetries if symmetries is None else symmetries, denoise, config)
-    chunks = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
+    chunks = _chunks(jobs, batch_size, processes)
     executor = _executor(processes, scheduler)
     if processes <= 1 and executor.kind == LOCAL:
         convert, initializer, initargs = functools.partial(_convert_chunk, settings, model=model), None, ()

@@ -69,7 +69,7 @@ from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES, InferConfig
 from export.uncertainty import smooth_by_uncertainty
 from synthesis.conventions import full_ink_points
 from synthesis.errors import PatternshopError, PatternshopWarning, require_file
-from synthesis.labmap import POINTS_PER_INK, LabMap, resample_channel, resample_map
+from synthesis.labmap import AB_RANGE, L_RANGE, POINTS_PER_INK, LabMap, resample_channel
 from synthesis.points import PointSet
 from synthesis.raster import point_raster
 
@@ -214,8 +214,18 @@ def raster_scale(domain: tuple[float, float], raster_size: int, trained_points_p
 def output_to_map(output: np.ndarray, domain: tuple[float, float], scale: float, width: int,
                   border_px: int = DEFAULT_INFER.border_px) -> LabMap:
     """Decode one network output (3, S, S) in [0, 1]: crop to the domain's ``w R`` x ``h R`` pixels, resample to ``width``."""
-    lab_map = LabMap.from_network(domain_crop(output, domain, scale, border_px))
-    return resample_map(lab_map, (max(1, round(width * lab_map.height / lab_map.width)), width))
+    output = domain_crop(output, domain, scale, border_px)
+    return network_map(output, (max(1, round(width * output.shape[1] / output.shape[2])), width))
+
+
+def network_map(output: np.ndarray, shape: tuple[int, int]) -> LabMap:
+    """The map of a network output (3, h, w) in [0, 1] resampled to ``shape`` (H, W): the values of
+    ``resample_map(LabMap.from_network(output), shape)``, decoded plane by plane without the (h, w, 3) map between
+    (4-5 ms instead of 9-13 ms from 586 to 256 px, ``tests/test_convert_edit.py::test_network_map_is_the_plain_decoding``)."""
+    output = np.asarray(output, np.float32)
+    planes = [np.clip(100.0 * (1.0 - (1.0 - output[0])), *L_RANGE)]  # LabMap.from_density_latent's arithmetic, in float32
+    planes += [np.clip(255.0 * output[c] - 128.0, *AB_RANGE) for c in (1, 2)]
+    return LabMap(np.stack([resample_channel(plane, shape) for plane in planes], axis=-1))
 
 
 def domain_crop(output: np.ndarray, domain: tuple[float, float], scale: float,
@@ -324,7 +334,7 @@ def read_pattern(points: PointSet, model: OnnxModel, points_per_ink: float, shap
     averaged over ``symmetries`` (:func:`predict_symmetric`)."""
     raster, pixels_per_unit = pattern_raster(points, model.raster_size, model.points_per_ink, points_per_ink, border_px)
     output = domain_crop(predict_symmetric(model, raster, symmetries), points.domain, pixels_per_unit, border_px)
-    lab_map = resample_map(LabMap.from_network(output[:3]), shape)
+    lab_map = network_map(output[:3], shape)
     l_scale = resample_channel(output[3], shape).astype(np.float64) if len(output) > 3 else None
     return lab_map, output[:3], pixels_per_unit, l_scale
 

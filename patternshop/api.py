@@ -492,7 +492,7 @@ def convert(
         threads: CPU threads per worker (ONNX Runtime, or the synthesiser).
         scheduler: a Dask scheduler's address (``tcp://host:8786``): run on its workers, which must reach both
             folders at the same absolute paths or URLs (docs/distributed.md).
-        batch_size: point files per worker task.
+        batch_size: point files per worker task at most (fewer in a short run, so that the workers end together).
         max_memory_gb: the memory all workers together may use; a file whose estimate exceeds its worker's share
             fails (None: no limit).
         progress_bar: show a progress bar on stderr.

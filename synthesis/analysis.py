@@ -73,10 +73,12 @@ def coincident_points(points: PointSet, progress: Progress | None = None) -> int
         return 0
     w, h = points.domain
     side = float(r_max(n, w * h))  # cells of one domain-wide r_max, clamped to the domain
-    cells = np.minimum(np.maximum(points.xy // side, 0), [math.ceil(w / side) - 1, math.ceil(h / side) - 1])
-    occupied = min(len(np.unique(cells, axis=0)) * side * side, w * h)
+    columns = math.ceil(w / side)
+    cells = np.minimum(np.maximum(points.xy // side, 0), [columns - 1, math.ceil(h / side) - 1]).astype(np.int64)
+    keys = cells[:, 1] * columns + cells[:, 0]  # one integer per cell: np.unique of rows took 8 times as long
+    occupied = min(len(np.unique(keys)) * side * side, w * h)
     reach = COINCIDENT * float(r_max(n, occupied))
-    tree = cKDTree(points.xy)
+    tree = cKDTree(points.xy, balanced_tree=False)  # sliding-midpoint splits: built in half the time, queried as fast
     coincident = 0
     for start in range(0, n, CHECK_CHUNK):
         stop = min(start + CHECK_CHUNK, n)

@@ -118,6 +118,53 @@ def test_convert_denoises_as_infer_does_unless_told_not_to(tmp_path, capsys):
     assert np.abs(written["denoised"] - written["plain"]).max() > 0.1  # the flag reached the workers
 
 
+@pytest.mark.parametrize("l_scale", [True, False])
+def test_convert_writes_the_bytes_infer_writes(l_scale, tmp_path, capsys):
+    """Two worker processes write, file for file, the TIFF that ``infer --symmetries 1`` writes (convert's default):
+    the uncertainty path of a model with ``l_scale`` and the stages of one without."""
+    import torch
+
+    from synthesis.generators import generate
+
+    torch.manual_seed(0)
+    model = tmp_path / "tiny.onnx"
+    export_onnx(DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest", l_scale=l_scale), model,
+                {"points_per_ink": 8000})
+    folder = tmp_path / "points"
+    folder.mkdir()
+    write_points(PointSet(generate("white", 3000, seed=2), points_per_ink=12_000.0), folder / "square.txt")
+    write_points(PointSet(generate("step", 1500, seed=3) * [1.0, 0.5], (1.0, 0.5)), folder / "wide.txt")
+    status, err = run(["convert", str(folder), str(tmp_path / "maps"), "--model", str(model), "--workers", "2",
+                       "--batch-size", "1", "--no-progress"], capsys)
+    assert status == 0, err
+    for name in ("square", "wide"):
+        status, err = run(["infer", str(folder / f"{name}.txt"), str(tmp_path / f"{name}.tif"), "--model", str(model),
+                           "--symmetries", "1"], capsys)
+        assert status == 0, err
+        assert (tmp_path / "maps" / f"{name}.tif").read_bytes() == (tmp_path / f"{name}.tif").read_bytes()
+
+
+def test_short_runs_go_to_the_workers_in_small_tasks():
+    """40 files on 2 workers go one per task (batches of 8 sent 24 to one worker, 16 to the other); long runs keep
+    --batch-size; every file once, in order."""
+    from export.convert import _chunks
+
+    for files, processes, batch, size in ((40, 2, 8, 1), (100, 2, 8, 3), (10_000, 2, 8, 8), (5, 1, 2, 1), (1000, 4, 3, 3)):
+        chunks = _chunks(list(range(files)), batch, processes)
+        assert max(map(len, chunks)) == size and [job for chunk in chunks for job in chunk] == list(range(files))
+
+
+def test_network_map_is_the_plain_decoding():
+    """export.runtime.network_map (plane by plane) gives the values of the map decoded whole, then resampled; values
+    beyond [0, 1] are clipped as LabMap clips them."""
+    from export.runtime import network_map
+    from synthesis.labmap import resample_map
+
+    output = np.random.default_rng(0).uniform(-0.05, 1.05, (3, 70, 90)).astype(np.float32)
+    for shape in ((32, 41), (70, 90), (140, 180)):
+        np.testing.assert_array_equal(network_map(output, shape).lab, resample_map(LabMap.from_network(output), shape).lab)
+
+
 def test_resynthesize_two_tiny_maps(tmp_path, capsys):
     folder = tmp_path / "maps"
     folder.mkdir()

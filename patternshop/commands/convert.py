@@ -15,9 +15,12 @@ EPILOG = """\
 Bad files do not stop the run: they are listed on stderr at the end; so are
 files whose estimated memory exceeds their worker's share of --max-memory-gb.
 Ctrl+C stops the workers at once: files finished before it are kept, no
-half-written file is left. Point files to maps: the network is nearly all the
-work (about 80 ms of one core per 20k-point file at 50,000 points per ink), so
-expect about 10 files/s per idle core; --workers 2 on 2 idle cores about doubles it.
+half-written file is left. Point files to maps: each worker reads, infers and
+writes whole files; with a model that predicts its uncertainty (l_scale) a
+20k-point file takes about 0.2 s of one core (the network about half), so
+expect about 5 files/s per idle core once the workers have started (about
+0.5 s each); the shipped model, without l_scale, about 0.75 s per file.
+--workers 2 on 2 idle cores about doubles it.
 Exit status: 0 every file converted or skipped; 1 some files failed (the
 others are written); 2 nothing done (bad arguments, missing folder or model)."""
 
@@ -29,8 +32,8 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         parents=[common],
         help="batch: infer maps for a folder of point files (or synthesise points for a folder of maps)",
         description="Infer a map for every point file (.txt, .csv, .xy, .pts, .npy) in IN_DIR and write "
-        "OUT_DIR/NAME.tif, running the network (ONNX Runtime) on batches of rasters while worker processes "
-        "read and rasterise the files. With --resynthesize, go the other way: synthesise OUT_DIR/NAME.txt "
+        "OUT_DIR/NAME.tif: worker processes each load the network (ONNX Runtime) once, then read, infer and "
+        "write files one or a few at a time. With --resynthesize, go the other way: synthesise OUT_DIR/NAME.txt "
         "for every map in IN_DIR (CIELAB/ICCLAB TIFF, channel PNGs NAME.L.png, sRGB images), one map per "
         "worker process. Existing outputs are skipped unless --overwrite.",
         epilog=EPILOG,
@@ -41,7 +44,8 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
     convert.add_argument("out_dir", help="output folder (created if missing): a path or an fsspec URL")
     convert.add_argument("--model", metavar="FILE", help="ONNX model (default: the shipped patternshop_nn/assets/default.onnx)")
     convert.add_argument("--batch-size", type=positive_int, default=8, metavar="B",
-                         help="point files per worker task (default 8)")
+                         help="point files per worker task at most (default 8; fewer in a short run, so that the "
+                         "workers finish together)")
     convert.add_argument("--workers", type=positive_int, default=2, metavar="N",
                          help="worker processes, each started once for the run (default 2; 1 works in this process)")
     convert.add_argument("--threads", type=positive_int, default=1, metavar="N",
