@@ -36,6 +36,10 @@ uses too. Pairs go to compressed shards of ``chunk`` items with a manifest
   ``sparse.scale`` and up to ``sparse.holes`` empty discs cut out of it; with
   ``sparse.empty_share`` > 0, that share of the items is empty (no points, a
   white map). Both at 0 (the default): items and config key unchanged.
+  With ``sparse.lighten_synthesis: false`` the factor applies only to other methods' items (their labels are
+  measured from their points); the synthesiser's items keep their density (holes are still cut): lightened
+  x0.03-0.4 to a few dozen points it cannot realise its label's correlation (networks v6 and v6c, trained on
+  such items of the v5 recipe, read light Poisson points as bluish). Default true: items and key unchanged.
 * Textures: with ``textures.share`` > 0, that share of the maps has its density
   replaced by a procedural texture with fine detail (:mod:`data_gen.makers.textures`:
   fractal and Gabor noise, hatching, Worley cells, rendered text, line art; weights
@@ -99,7 +103,7 @@ class PairSettings:
     iterations: int | None
     palette: str | None  # None: the shipped palette
     other_methods: dict  # {"share": float in [0, 1], "methods": {name: weight}} (see the module docstring)
-    sparse: dict  # {"share", "scale": [lo, hi], "holes", "empty_share"} (see the module docstring)
+    sparse: dict  # {"share", "scale": [lo, hi], "holes", "empty_share", "lighten_synthesis"} (see the module docstring)
     dense: dict  # {"share", "scale": [lo, hi]} (see the module docstring)
     textures: dict  # {"share", "kinds": {name: weight}} (see the module docstring)
     scale: dict  # {"share", "points_per_ink": [lo, hi], "lighten_synthesis"} (see the module docstring)
@@ -142,6 +146,8 @@ class PairSettings:
             content["scale"] = {k: v for k, v in self.scale.items() if k != "lighten_synthesis"}
         if not (self.sparse["share"] or self.sparse["empty_share"]):
             del content["sparse"]
+        elif self.sparse["lighten_synthesis"]:  # folders made before this option keep their key
+            content["sparse"] = {k: v for k, v in self.sparse.items() if k != "lighten_synthesis"}
         if not self.dense["share"]:
             del content["dense"]
         return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -181,14 +187,16 @@ def log_uniform_factor(rng: np.random.Generator, bounds: list[float]) -> float:
 
 
 def sparse_setting(config: dict) -> dict:
-    """``sparse`` config -> {"share", "scale", "holes", "empty_share"} checked (shares in [0, 1], 0 < lo <= hi <= 1)."""
+    """``sparse`` config -> {"share", "scale", "holes", "empty_share", "lighten_synthesis"} checked (shares in [0, 1],
+    0 < lo <= hi <= 1)."""
     share, empty_share = float(config.get("share", 0.0)), float(config.get("empty_share", 0.0))
     holes = int(config.get("holes", 3))
     if not (0.0 <= share <= 1.0 and 0.0 <= empty_share <= 1.0):
         raise ValueError(f"sparse.share and sparse.empty_share must be in [0, 1], got {share:g} and {empty_share:g}")
     if holes < 0:
         raise ValueError(f"sparse.holes must be >= 0, got {holes}")
-    return {"share": share, "scale": factor_range(config, "sparse", (0.03, 0.4)), "holes": holes, "empty_share": empty_share}
+    return {"share": share, "scale": factor_range(config, "sparse", (0.03, 0.4)), "holes": holes, "empty_share": empty_share,
+            "lighten_synthesis": bool(config.get("lighten_synthesis", True))}
 
 
 def textures_setting(config: dict) -> dict:
@@ -265,9 +273,9 @@ def dense_setting(config: dict) -> dict:
     return {"share": share, "scale": factor_range(config, "dense", (0.05, 0.5))}
 
 
-def density_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator) -> LabMap:
-    """The map, lightened and holed for a share of the items, emptied for another, darkened for a third
-    (see the module docstring).
+def density_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Generator, lighten: bool = True) -> LabMap:
+    """The map, lightened and holed for a share of the items (only holed with ``lighten`` false: the factor is
+    drawn and not applied), emptied for another, darkened for a third (see the module docstring).
 
     Draws from ``rng`` only when ``sparse.share``, ``sparse.empty_share`` or ``dense.share`` is > 0.
     """
@@ -276,7 +284,8 @@ def density_variant(settings: PairSettings, lab_map: LabMap, rng: np.random.Gene
     if options["empty_share"] and rng.random() < options["empty_share"]:
         density = np.zeros(lab_map.L.shape)
     elif options["share"] and rng.random() < options["share"]:
-        density = lab_map.density() * log_uniform_factor(rng, options["scale"])
+        factor = log_uniform_factor(rng, options["scale"])
+        density = lab_map.density() * (factor if lighten else 1.0)
         rows, cols = np.indices(density.shape)
         for _ in range(int(rng.integers(0, options["holes"] + 1))):
             (row, col), radius = rng.random(2) * density.shape, rng.uniform(0.05, 0.25) * max(density.shape)
@@ -319,16 +328,27 @@ def other_method_points(settings: PairSettings, maker: MapMaker, lab_map: LabMap
     return labelled, METHODS[method](labelled.density(), n, labelled.domain, rng), method
 
 
+def item_map(settings: PairSettings, maker: MapMaker, item: int) -> tuple[np.random.Generator, LabMap, float, bool | None]:
+    """(item's random stream after the map's draws, its map with every variant applied, the points per ink it is
+    drawn at, whether it was drawn as another method's: None when not drawn yet). The first steps of :func:`make_pair`;
+    :mod:`data_gen.clean_pairs` replays them."""
+    rng = np.random.default_rng([settings.seed, item])
+    lab_map = texture_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
+    measured_only = not (settings.scale["lighten_synthesis"] and settings.sparse["lighten_synthesis"])
+    other_first = draw_other(settings, rng) if measured_only else None  # lighten measured labels only
+    synthesised = other_first is False
+    lab_map, drawn_points_per_ink = scale_variant(settings, lab_map, rng,
+                                                  lighten=settings.scale["lighten_synthesis"] or not synthesised)
+    lab_map = density_variant(settings, lab_map, rng, lighten=settings.sparse["lighten_synthesis"] or not synthesised)
+    return rng, lab_map, drawn_points_per_ink, other_first
+
+
 def make_pair(settings: PairSettings, maker: MapMaker, item: int) -> Pairs:
     """Pair ``item``: map, synthesised (or other methods') points, raster. Raises :class:`SourceError` for a bad source."""
     from synthesis.raster import point_raster
     from synthesis.synthesize import point_count, synthesize
 
-    rng = np.random.default_rng([settings.seed, item])
-    lab_map = texture_variant(settings, target_to_map(map_to_target(maker.make(item, rng))), rng)
-    other_first = None if settings.scale["lighten_synthesis"] else draw_other(settings, rng)  # lighten measured labels only
-    lab_map, drawn_points_per_ink = scale_variant(settings, lab_map, rng, lighten=other_first is not False)
-    lab_map = density_variant(settings, lab_map, rng)
+    rng, lab_map, drawn_points_per_ink, other_first = item_map(settings, maker, item)
     target = map_to_target(lab_map)
     try:
         n = point_count(lab_map, settings.points_per_ink)

@@ -51,6 +51,17 @@ class StepTimer(L.Callback):
         self.seconds.append(time.perf_counter() - self._start)
 
 
+class FinalCheckpoint(L.Callback):
+    """Writes ``last.ckpt`` when training ends: the every-N-steps ``last.ckpt`` of ``ModelCheckpoint`` lags the
+    final weights by up to N - 1 steps when N does not divide the step count (network v7: step 1,600 of 1,680)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def on_train_end(self, trainer, module) -> None:  # noqa: ANN001 - Lightning's hook
+        trainer.save_checkpoint(self.path)
+
+
 def make_pairs(cfg: DictConfig) -> None:
     """Make the missing pairs: ``cfg.pairs`` is conf/generation/default.yaml, as in ``python -m data_gen.pairs``."""
     from data_gen.pairs import generate
@@ -102,6 +113,7 @@ def train(cfg: DictConfig) -> dict:
         ModelCheckpoint(dirpath=checkpoints, save_last=True, save_top_k=0, every_n_train_steps=int(cfg.checkpoint_every_n_steps)),
         ModelCheckpoint(dirpath=checkpoints, filename="best", monitor="val/l1", mode="min", save_top_k=1),
         timer,
+        FinalCheckpoint(checkpoints / "last.ckpt"),
     ]
     if cfg.get("keep_epoch_checkpoints"):  # checkpoints/epoch=K.ckpt at every epoch end, all kept (interim models)
         callbacks.append(ModelCheckpoint(dirpath=checkpoints, filename="{epoch}", save_top_k=-1, every_n_epochs=1))

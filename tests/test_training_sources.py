@@ -9,7 +9,7 @@ from data_gen.makers import build_maker
 from data_gen.makers.textures import MIN_MEAN, TEXTURES, texture_picture
 from data_gen.pairs import PairSettings, generate
 from data_gen.provenance import compose_config
-from data_gen.shards import load_pairs, target_to_map
+from data_gen.shards import load_pairs, map_to_target, target_to_map
 from data_gen.stipplers import DEFAULT_METHODS, LABELS, METHODS, bayer_matrix
 from synthesis.errors import PatternshopError
 from synthesis.synthesize import point_count
@@ -149,6 +149,60 @@ def test_without_lighten_synthesis_only_measured_labels_are_lightened():
     assert any(ratio < 1 for method, ratio in old if method == "synthesis")  # what the option turns off
     assert scale_settings().key() == PairSettings.from_config(compose_config(
         "pairs", ["map_size=32", "scale.share=1.0", "scale.lighten_synthesis=true"])).key()  # v6's folder keeps its key
+
+
+def test_without_sparse_lighten_synthesis_only_measured_labels_are_lightened():
+    """The v5 recipe's sparse lightening (x0.03-0.4) gave synthesised items labels that a few dozen points cannot
+    show (v6 and v6c read light Poisson points as bluish). With sparse.lighten_synthesis=false the synthesiser's
+    items keep the maker's density; other methods' items (measured labels) are still lightened."""
+    from data_gen.pairs import make_pair
+
+    def items(lighten: bool) -> list[tuple[str, float, float]]:
+        """(method, item's mean L, the maker's map's mean L) of each non-empty item, every map drawn lightened."""
+        settings = PairSettings.from_config(compose_config("pairs", [
+            "map_size=32", "raster_size=32", "synthesis.points_per_ink=3000", "synthesis.iterations=2", "sparse.share=1.0",
+            "sparse.holes=0", "other_methods.share=0.5", f"sparse.lighten_synthesis={str(lighten).lower()}"]))
+        maker = build_maker(settings.dataset, settings.map_size, settings.palette)
+        rows = []
+        for item in range(16):
+            pair = make_pair(settings, maker, item)
+            made = map_to_target(target_to_map(map_to_target(maker.make(item, np.random.default_rng([settings.seed, item])))))
+            if pair.meta[0]["n"]:
+                rows.append((pair.meta[0]["method"], float(pair.target[0][..., 0].mean()), float(made[..., 0].mean())))
+        return rows
+
+    fixed, old = items(False), items(True)
+    assert any(method == "synthesis" for method, _, _ in fixed) and any(method != "synthesis" for method, _, _ in fixed)
+    assert all(L == made for method, L, made in fixed if method == "synthesis")  # the maker's map, not lightened
+    assert all(L > made for method, L, made in fixed if method != "synthesis")  # measured labels are still lightened
+    assert all(L > made for method, L, made in old if method == "synthesis")  # what the option turns off
+    assert PairSettings.from_config(compose_config("pairs", ["map_size=32", "sparse.share=0.25"])).key() == \
+        PairSettings.from_config(compose_config("pairs", ["map_size=32", "sparse.share=0.25",
+                                                          "sparse.lighten_synthesis=true"])).key()  # v5's folders keep their key
+
+
+def test_clean_pairs_drops_exactly_the_lightened_synthesised_items(tmp_path):
+    """A folder of the old rule (sparse.lighten_synthesis=true): the cleaned copy keeps other methods' items and the
+    synthesised items whose maps were not lightened, found by replaying their draws; the manifest says what went."""
+    from data_gen.clean_pairs import main
+    from data_gen.shards import read_manifest
+
+    generate(compose_config("pairs", [f"out_dir={tmp_path / 'old'}", "workers=1", "map_size=32", "raster_size=32",
+                                      "synthesis.points_per_ink=3000", "synthesis.iterations=2", "num_items=16",
+                                      "sparse.share=0.5", "sparse.holes=0", "other_methods.share=0.5"]))
+    old = load_pairs(tmp_path / "old")
+    assert main([str(tmp_path / "old"), str(tmp_path / "clean")]) == 0
+    clean, record = load_pairs(tmp_path / "clean"), read_manifest(tmp_path / "clean")["cleaned"]
+    settings = PairSettings.from_config(compose_config("pairs", ["map_size=32", "sparse.share=0.5", "sparse.holes=0"]))
+    maker = build_maker(settings.dataset, settings.map_size, settings.palette)
+    lightened = set()
+    for item, meta, target in zip(old.item, old.meta, old.target, strict=True):  # the maker's own map: lighter when lightened
+        made = maker.make(int(item), np.random.default_rng([0, int(item)]))
+        if meta["method"] == "synthesis" and target[..., 0].mean() > map_to_target(target_to_map(map_to_target(made)))[..., 0].mean():
+            lightened.add(int(item))
+    assert lightened and set(record["dropped"]["sparse"]) == lightened and not record["dropped"]["unmatched"]
+    assert sorted(clean.item.tolist()) == sorted(set(old.item.tolist()) - lightened)
+    assert main([str(tmp_path / "old"), str(tmp_path / "clean")]) == 1  # never into a folder that has pairs
 
 
 def lattice_angle(xy: np.ndarray, period: float) -> float:
