@@ -28,7 +28,15 @@ Warm start (``warm_start``, one thread, one run): :data:`WARM_POINTS` points, a 
 points re-drawn (``redrawn_start``), then a full run and a warm start on the edited map: their seconds and the
 disc's statistics from ``bench/fidelity_stats.py`` (see :func:`_warm_start_case`).
 
-Targets (issue 27; one thread, whole ``synthesize()`` call): 10k <= 1 s after start-up, 100k <= 10 s and at most
+10k split (``synthesis_10k_split``, one thread, medians of 3 children; issue 27 frames 10k as "<= 1 s plus <= 0.5 s
+start-up"): (a) the whole first ``synthesize()`` call in a fresh process (the ``synthesis`` row: it loads numba, the
+kernels and the palette's tables inside the call), (b) the synthesis itself: a second call on the bench map in a process
+whose first call ran on another map (:data:`WARM_UP_SIDE`-px, another lightness and preset, other n and seed: nothing
+of the bench map's is computed there, and synthesis keeps no result between calls), and the start-up inside the first
+call, (a) - (b); wall and CPU seconds each (``cpu_seconds``: steadier on a loaded machine).
+
+Targets (issue 27; one thread, whole ``synthesize()`` call): 10k <= 1 s after start-up ((b) above, and (a) - (b) <=
+0.5 s), 100k <= 10 s and at most
 0.2 x PoissonDisk's time in the same run (the ratios use the 1-thread syntheses); 1M <= 2 min and <= 1.5 GB;
 start-up < 1 s (and <= 0.5 s to the first iteration).
 
@@ -62,6 +70,8 @@ WARM_POINTS = 20_000  # the warm-start row: a full run, then a local edit (a dis
 WARM_DISC = (0.5, 0.5, 0.25)  # the edited disc: centre x, y and radius, map units
 WARM_L = 30.0  # its new lightness (the map's is 50)
 STARTUP_RUNS = 5  # fresh processes per start-up case (medians)
+WARM_UP_SIDE, WARM_UP_L, WARM_UP_PRESET, WARM_UP_POINTS = 64, 40.0, "step", 1_000  # the warm-up call's map, before
+# the timed second call of ``synthesis_after_warm_up``: another size, lightness and colour (nothing of the bench map's)
 STARTUP_POINTS = 10_000
 STARTUP_MAP = ROOT / "examples" / "logo.tif"
 HEAVY_MODULES = ("torch", "matplotlib", "sklearn")  # the synthesis path needs none of them
@@ -72,20 +82,30 @@ def _child(kind: str, n: int, threads: int) -> dict:
     """Run one case in this process and return its figures (called in a child)."""
     import numpy as np
 
-    if kind == "synthesis":
+    if kind in ("synthesis", "synthesis_after_warm_up"):
+        began, began_cpu = time.perf_counter(), time.process_time()
         from synthesis.labmap import LabMap
         from synthesis.palette import load_palette
         from synthesis.synthesize import synthesize
 
         palette = load_palette()
+        figures = {"imports_s": time.perf_counter() - began}
+        if kind == "synthesis_after_warm_up":  # numba, its kernels and the palette's tables loaded by another map's run
+            warm_up = np.zeros((WARM_UP_SIDE, WARM_UP_SIDE, 3), np.float32)
+            warm_up[..., 0] = WARM_UP_L
+            warm_up[..., 1:] = palette.preset_ab()[WARM_UP_PRESET]
+            synthesize(LabMap(warm_up), n=WARM_UP_POINTS, palette=palette, seed=1, threads=threads)
+            figures["warm_up_call_s"] = time.perf_counter() - began - figures["imports_s"]
+            figures["warm_up_cpu_s"] = time.process_time() - began_cpu  # imports and the warm-up call
         lab = np.zeros((MAP_SIDE, MAP_SIDE, 3), np.float32)
         lab[..., 0] = 50.0
         lab[..., 1:] = palette.preset_ab()["blue"]
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         result = synthesize(LabMap(lab), n=n, palette=palette, seed=0, threads=threads)
         seconds = time.perf_counter() - start
-        figures = {"seconds": seconds, "setup_seconds": result.setup_seconds, "final_loss": result.final_loss,
-                   "ms_per_iteration": 1000 * (seconds - result.setup_seconds) / result.iterations}
+        figures |= {"seconds": seconds, "cpu_seconds": time.process_time() - start_cpu,
+                    "setup_seconds": result.setup_seconds, "final_loss": result.final_loss,
+                    "ms_per_iteration": 1000 * (seconds - result.setup_seconds) / result.iterations}
     elif kind == "warm_start":
         figures = _warm_start_case(n, threads)
     elif kind == "poisson_disk":
@@ -259,7 +279,8 @@ def _run(kind: str, n: int, threads: int, repeats: int | None = None) -> dict:
         figures = json.loads(done.stdout.strip().splitlines()[-1])
         runs.append(figures | {"load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)})
     figures = sorted(runs, key=lambda run: run["seconds"])[len(runs) // 2] | {"runs_s": [round(run["seconds"], 3) for run in runs]}
-    print(f"  {kind:13s} n={n:>9,} threads={threads}: {figures['seconds']:8.2f} s (median of {len(runs)}), peak "
+    cpu = f" ({figures['cpu_seconds']:.2f} s CPU)" if "cpu_seconds" in figures else ""
+    print(f"  {kind:13s} n={n:>9,} threads={threads}: {figures['seconds']:8.2f} s{cpu} (median of {len(runs)}), peak "
           f"{figures['peak_gb']:.2f} GB (load {figures['load_before']:.1f} -> {figures['load_after']:.1f})", flush=True)
     return {key: round(value, 4) if isinstance(value, float) else value for key, value in figures.items()}
 
@@ -310,6 +331,15 @@ def main() -> None:
         results["synthesis"][str(n)] = _run("synthesis", n, args.threads)
         if n <= ONE_THREAD_UP_TO and args.threads != 1:
             results["synthesis_1_thread"][str(n)] = _run("synthesis", n, 1)
+    one_thread = results["synthesis"] if args.threads == 1 else results["synthesis_1_thread"]
+    split = results["synthesis_10k_split"] = _run("synthesis_after_warm_up", 10_000, 1)
+    split["start_up_in_first_call_s"] = round(one_thread["10000"]["seconds"] - split["seconds"], 4)
+    split["start_up_in_first_call_cpu_s"] = round(one_thread["10000"]["cpu_seconds"] - split["cpu_seconds"], 4)
+    print(f"  10k, 1 thread: (a) whole first call in a fresh process {one_thread['10000']['seconds']:.2f} s "
+          f"({one_thread['10000']['cpu_seconds']:.2f} s CPU) = (b) the synthesis, a second call after a warm-up on "
+          f"another map, {split['seconds']:.2f} s ({split['cpu_seconds']:.2f} s CPU) + start-up inside the first call "
+          f"{split['start_up_in_first_call_s']:.2f} s ({split['start_up_in_first_call_cpu_s']:.2f} s CPU); imports "
+          f"before the call {split['imports_s']:.2f} s", flush=True)
     for n in REFERENCE_SIZES:
         for kind in ("poisson_disk", "lloyd"):
             results["references"][f"{kind}_{n}"] = _run(kind, n, 1)
@@ -318,7 +348,6 @@ def main() -> None:
           f"warm {warm['warm']['seconds']:.2f} s; the disc's min NN {warm['full']['disc_min_nn']:.3f} / "
           f"{warm['warm']['disc_min_nn']:.3f}, NN CV {warm['full']['disc_nn_cv']:.4f} / {warm['warm']['disc_nn_cv']:.4f}",
           flush=True)
-    one_thread = results["synthesis"] if args.threads == 1 else results["synthesis_1_thread"]
     ratios = {}  # the issue's targets are on one thread: the references against the 1-thread syntheses of this run
     for n in REFERENCE_SIZES:
         ours = one_thread[str(n)]["seconds"]
@@ -331,7 +360,9 @@ def main() -> None:
     results["targets"] = {
         "startup_below_1s": results["startup"]["median_s"] < 1.0,
         "startup_to_first_iteration_at_most_0.5s": results["startup_fresh_process"]["cli"]["to_first_iteration_s"]["median"] <= 0.5,
-        "10k_at_most_1s_after_startup_1_thread": one_thread["10000"]["seconds"] <= 1.0,
+        "10k_synthesis_at_most_1s_1_thread": split["seconds"] <= 1.0,  # (b): the second call, after a warm-up
+        "10k_start_up_in_first_call_at_most_0.5s_1_thread": split["start_up_in_first_call_s"] <= 0.5,  # (a) - (b)
+        "10k_whole_first_call_at_most_1.5s_1_thread": one_thread["10000"]["seconds"] <= 1.5,  # (a)
         "100k_at_most_10s_1_thread": one_thread["100000"]["seconds"] <= 10.0,
         "100k_at_most_0.2x_poisson_disk_1_thread": ratios["100000"]["poisson_disk_over_synthesis_1_thread"] >= 5.0,
     }

@@ -13,8 +13,8 @@ leaves no 60-degree hue wedge with more than ``max_wedge_share`` of the
 exemplars) -> PCF table (:func:`data_gen.palette_table.with_preset_exemplars`:
 PCFs re-measured, presets realised exactly, 256 x 256 IDW look-up table) ->
 quality metrics (decoding reads the exemplars' PCFs, :func:`synthesis.palette.pcf_code`;
-:func:`data_gen.palette_table.decoding_record`). Writes the asset (``output``) and a provenance record beside
-it (same name, ``.json``). Settings: ``conf/palette.yaml``; tiny variant
+:func:`data_gen.palette_table.decoding_record`). Writes the asset (``output``), a provenance record beside
+it (same name, ``.json``) and the exemplars' nearest-neighbour bounds (:func:`data_gen.palette_table.write_neighbour_table`). Settings: ``conf/palette.yaml``; tiny variant
 ``--config-name palette_small``.
 """
 
@@ -33,7 +33,7 @@ from data_gen.executor import Executor
 from data_gen.families import build_families
 from data_gen.provenance import git_commit, machine, run_config_command, utc_now, versions
 from data_gen.embedding import compressed, l1_distances, mds_layout, orient, stress1, trustworthiness
-from data_gen.palette_table import decoding_record, with_preset_exemplars
+from data_gen.palette_table import decoding_record, with_preset_exemplars, write_neighbour_table
 from synthesis.atomic import atomic_write_text
 from synthesis.features import block_slices, scale_blocks
 from synthesis.palette import Palette, ab_to_latent, hue_chroma, latent_to_ab
@@ -190,6 +190,7 @@ def build(cfg: DictConfig) -> dict:
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     palette.save(output)
+    neighbours = write_neighbour_table(output)  # the nearest-neighbour term's bounds, beside the asset
     lap("save")
 
     # --- quality metrics ---------------------------------------------------
@@ -238,6 +239,7 @@ def build(cfg: DictConfig) -> dict:
         "presets": presets,
         "metrics": metrics,
         "decoding": decoding_record(palette),
+        "neighbours": neighbours,
         "timings_s": timings,
         "versions": versions(),
         "commit": git_commit(),

@@ -18,6 +18,7 @@ import numpy as np
 from synthesis.workspace import Workspace, scratch
 
 MAX_CELLS_PER_POINT = 4.0  # the grid never has more cells than this many per point (tiny reaches)
+REUSED_ROOM = 1.2  # a query writes its lists in one pass into this many times the room the last one of its name took
 
 
 @numba.njit(cache=True)
@@ -41,40 +42,44 @@ def _bin(points, cell, nx, ny):  # pragma: no cover - jitted
 
 
 @numba.njit(parallel=True, cache=True)
-def _scan(sorted_xy, order, start, cell, nx, ny, box, periodic, centres, reach, exclude, offsets, index, distance,
-          write):  # pragma: no cover - jitted
-    for q in numba.prange(len(centres)):
-        x, y, r = centres[q, 0], centres[q, 1], reach[q]
-        r2 = r * r
-        lo_x, hi_x = int(math.floor((x - r) / cell[0])), int(math.floor((x + r) / cell[0]))
-        lo_y, hi_y = int(math.floor((y - r) / cell[1])), int(math.floor((y + r) / cell[1]))
-        if periodic:
-            if hi_x - lo_x + 1 > nx:
-                lo_x, hi_x = 0, nx - 1
-            if hi_y - lo_y + 1 > ny:
-                lo_y, hi_y = 0, ny - 1
-        else:
-            lo_x, hi_x = max(lo_x, 0), min(hi_x, nx - 1)
-            lo_y, hi_y = max(lo_y, 0), min(hi_y, ny - 1)
-        found = offsets[q] if write else 0
-        for iy in range(lo_y, hi_y + 1):
-            cy = iy % ny if periodic else iy
-            for ix in range(lo_x, hi_x + 1):
-                c = cy * nx + (ix % nx if periodic else ix)
-                for p in range(start[c], start[c + 1]):
-                    dx, dy = sorted_xy[p, 0] - x, sorted_xy[p, 1] - y
-                    if periodic:
-                        dx -= box[0] * round(dx / box[0])
-                        dy -= box[1] * round(dy / box[1])
-                    d2 = dx * dx + dy * dy
-                    if d2 <= r2 and order[p] != exclude[q]:
-                        if write:
-                            index[found] = order[p]
-                            if len(distance):
-                                distance[found] = math.sqrt(d2)
-                        found += 1
-        if not write:
-            offsets[q + 1] = found  # a count, cumulated by the caller
+def _scan(sorted_xy, order, start, cell, nx, ny, box, periodic, centres, reach, exclude, counts, slabs, index,
+          distance):  # pragma: no cover - jitted
+    """Each centre's points within reach: counted into counts (C,) and written to index (and distance, unless empty),
+    run t of the len(slabs) - 1 equal runs of centres from slabs[t] on, as far as they fit before slabs[t + 1]."""
+    runs = len(slabs) - 1
+    for t in numba.prange(runs):
+        found = slabs[t]
+        for q in range(t * len(centres) // runs, (t + 1) * len(centres) // runs):
+            x, y, r = centres[q, 0], centres[q, 1], reach[q]
+            r2 = r * r
+            lo_x, hi_x = int(math.floor((x - r) / cell[0])), int(math.floor((x + r) / cell[0]))
+            lo_y, hi_y = int(math.floor((y - r) / cell[1])), int(math.floor((y + r) / cell[1]))
+            if periodic:
+                if hi_x - lo_x + 1 > nx:
+                    lo_x, hi_x = 0, nx - 1
+                if hi_y - lo_y + 1 > ny:
+                    lo_y, hi_y = 0, ny - 1
+            else:
+                lo_x, hi_x = max(lo_x, 0), min(hi_x, nx - 1)
+                lo_y, hi_y = max(lo_y, 0), min(hi_y, ny - 1)
+            before = found
+            for iy in range(lo_y, hi_y + 1):
+                cy = iy % ny if periodic else iy
+                for ix in range(lo_x, hi_x + 1):
+                    c = cy * nx + (ix % nx if periodic else ix)
+                    for p in range(start[c], start[c + 1]):
+                        dx, dy = sorted_xy[p, 0] - x, sorted_xy[p, 1] - y
+                        if periodic:
+                            dx -= box[0] * round(dx / box[0])
+                            dy -= box[1] * round(dy / box[1])
+                        d2 = dx * dx + dy * dy
+                        if d2 <= r2 and order[p] != exclude[q]:
+                            if found < slabs[t + 1]:
+                                index[found] = order[p]
+                                if len(distance):
+                                    distance[found] = math.sqrt(d2)
+                            found += 1
+            counts[q] = found - before
 
 
 class CellGrid:
@@ -116,11 +121,31 @@ class CellGrid:
         box = np.asarray(self.domain, np.float64)
         offsets = workspace.empty(f"{name}.offsets", count + 1, np.int64)
         offsets[0] = 0
+        runs = max(1, min(numba.get_num_threads(), count))
+        edges = np.arange(runs + 1) * count // runs  # the kernel's runs of centres
         args = (self.sorted_xy, self.order, self.start, self.cell, self.nx, self.ny, box, self.periodic, centres, reach,
-                exclude, offsets)
-        _scan(*args, np.empty(0, np.int32), np.empty(0), False)
-        np.cumsum(offsets, out=offsets)  # offsets[q + 1] held the count of centre q
+                exclude, offsets[1:])
+        # one pass into the room the last query of this name needed (and a fifth more) where there was one; otherwise,
+        # or where a run's points did not fit, a counting pass first (the scan is most of a neighbour refresh)
+        room = int(REUSED_ROOM * workspace.asked(f"{name}.index"))
+        if room:
+            index = workspace.empty(f"{name}.index", room, np.int32)
+            distance = workspace.empty("query.distance", room) if distances else np.empty(0)
+            slabs = np.arange(runs + 1) * room // runs
+            _scan(*args, slabs, index, distance)
+            totals = np.add.reduceat(offsets[1:], edges[:-1]) if count else np.zeros(runs, np.int64)
+            if np.all(totals <= np.diff(slabs)):
+                np.cumsum(offsets, out=offsets)
+                for t in range(1, runs):  # runs' lists side by side (in place: each moves down, or stays)
+                    index[offsets[edges[t]]:offsets[edges[t + 1]]] = index[slabs[t]:slabs[t] + totals[t]]
+                    if distances:
+                        distance[offsets[edges[t]]:offsets[edges[t + 1]]] = distance[slabs[t]:slabs[t] + totals[t]]
+                index = workspace.empty(f"{name}.index", offsets[-1], np.int32)  # the room used (for the next query)
+                return offsets, index, distance[:offsets[-1]] if distances else None
+        _scan(*args, np.zeros(runs + 1, np.int64), np.empty(0, np.int32), np.empty(0))  # count only
+        np.cumsum(offsets, out=offsets)
         index = workspace.empty(f"{name}.index", offsets[-1], np.int32)
         distance = workspace.empty("query.distance", offsets[-1]) if distances else np.empty(0)
-        _scan(*args, index, distance, True)
+        _scan(*args, offsets[edges], index, distance)  # the counts again, over the cumulated ones
+        np.cumsum(offsets, out=offsets)
         return offsets, index, distance if distances else None

@@ -35,9 +35,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import correlate1d, gaussian_filter
 
-from synthesis.fields import MapFields, _area_matrix, sample_grid
+from synthesis.fields import MapFields, _area_matrix
+from synthesis.fields_fast import gaussian_blur
 from synthesis.labmap import LabMap
 
 BLUR_CELLS = 3.0  # the blur's standard deviation in grid cells (cells of ``scale / 3`` mean spacings: a tent splat
@@ -61,7 +61,7 @@ class DensityTerm:
     """
 
     def __init__(self, lab_map: LabMap, fields: MapFields, weight: float, scale: float):
-        from synthesis.edgepcf import regularity
+        from synthesis.edgepcf import regularity_at
 
         w, h = fields.domain
         n = fields.n
@@ -75,20 +75,18 @@ class DensityTerm:
         self.target = n * ink / max(float(ink.sum()), 1e-300)
         ys, xs = (np.arange(gh) + 0.5) * self.cell[1], (np.arange(gw) + 0.5) * self.cell[0]
         centres = np.stack(np.meshgrid(xs, ys, indexing="xy"), axis=-1).reshape(-1, 2)
-        target_pcf = sample_grid(fields.target, centres, fields.side_px).astype(np.float64)
-        self.mask = regularity(target_pcf, fields.radii).reshape(gh, gw)
+        self.mask = regularity_at(fields, centres).reshape(gh, gw)
         self.sigma = (scale * spacing / self.cell[1], scale * spacing / self.cell[0])
         self.weight = float(weight)
         self.variance = max(float(self.target.mean()), 1e-12) / (4.0 * math.pi * self.sigma[0] * self.sigma[1])
         self.cells = gh * gw
-        self.target = correlate1d(correlate1d(np.pad(self.target, PAD), TENT, axis=0, mode="constant"), TENT, axis=1,
-                                  mode="constant")
+        self.target = _tent_filter(np.pad(self.target, PAD))
         self.mask = np.pad(self.mask, PAD, mode="edge")
         self.shape = self.target.shape
         self.active = self.weight > 0 and bool(self.mask.max() > 0)
 
     def _blur(self, values: np.ndarray) -> np.ndarray:
-        return gaussian_filter(values, self.sigma, mode="constant", truncate=TRUNCATE)
+        return gaussian_blur(values, self.sigma, TRUNCATE)  # scipy.ndimage.gaussian_filter's, mode "constant"
 
     def _adjoint(self, counts: np.ndarray) -> tuple[float, np.ndarray]:
         """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell."""
@@ -134,3 +132,12 @@ class DensityTerm:
         gx = ((1 - fv) * (u[i0, j1] - u[i0, j0]) + fv * (u[i1, j1] - u[i1, j0])) / self.cell[0]
         gy = ((1 - fu) * (u[i1, j0] - u[i0, j0]) + fu * (u[i1, j1] - u[i0, j1])) / self.cell[1]
         return loss, np.stack([gx, gy], axis=1)
+
+
+def _tent_filter(values: np.ndarray) -> np.ndarray:
+    """values (H, W) correlated with :data:`TENT` along both axes, zero beyond the edges (``scipy.ndimage.correlate1d``
+    with ``mode="constant"`` on each axis)."""
+    for axis in (0, 1):
+        padded = np.moveaxis(np.pad(values, [(1, 1) if a == axis else (0, 0) for a in (0, 1)]), axis, 0)
+        values = np.moveaxis(TENT[0] * padded[:-2] + TENT[1] * padded[1:-1] + TENT[2] * padded[2:], 0, axis)
+    return values

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import importlib
 import sys
+import types
 
-SYNTHESIS_KERNELS = ("synthesis.cells", "synthesis.edgepcf_fast", "synthesis.fields_fast", "synthesis.step_fast")
+SYNTHESIS_KERNELS = ("synthesis.cells", "synthesis.edgepcf_fast", "synthesis.fields_fast", "synthesis.neighbour_term",
+                     "synthesis.step_fast")
 _announced: set[str] = set()
 
 
@@ -58,3 +60,25 @@ def announce_compilation(modules: tuple[str, ...] = SYNTHESIS_KERNELS, what: str
     _announced.add(what)
     if cold_modules(modules):
         print(f"compiling {what} (first run only, about {seconds} s)...", file=sys.stderr, flush=True)
+
+
+def skip_blas_check() -> None:
+    """Load numba's array registries without importing scipy.linalg (0.1-0.3 s of every synthesis's start-up).
+
+    When numba loads its first kernel it imports ``numba.np.arraymath``, which checks that BLAS is there by importing
+    ``scipy.linalg.cython_blas``, and so the whole of scipy.linalg (its import also clones numpy's array API and loads
+    numpy.f2py). None of the synthesis kernels calls BLAS; this imports that module first with a placeholder standing
+    in for ``scipy.linalg.cython_blas``, removed at once. A kernel that does use ``np.dot`` or ``np.linalg`` still
+    compiles and runs: numba then imports the real module (the placeholder is gone). Nothing is done where numba's
+    registries or scipy.linalg are already loaded.
+    """
+    name = "scipy.linalg.cython_blas"
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    placeholder = types.ModuleType(name)
+    sys.modules[name] = placeholder
+    try:
+        importlib.import_module("numba.np.arraymath")
+    finally:
+        if sys.modules.get(name) is placeholder:
+            del sys.modules[name]

@@ -2,7 +2,8 @@
 
 Built once by ``python -m data_gen.palette`` (see there and SPEC §2.1) and
 shipped as ``synthesis/assets/palette.npz`` with a provenance record
-``palette.json`` beside it. At run time it answers two questions:
+``palette.json`` and the exemplars' nearest-neighbour bounds ``palette_neighbours.npz``
+(:func:`read_neighbour_table`) beside it. At run time it answers two questions:
 
 * **encode** — which PCF does the chroma (a, b) stand for? :meth:`Palette.pcf`
   samples the 256 x 256 x m look-up table bilinearly, so 8-bit, 16-bit and
@@ -47,6 +48,8 @@ LUT_SIZE = 256
 DISPERSION_LUT_SIZE = 64  # the dispersion table varies slowly: 64 x 64 nodes
 POPULATED_RADIUS = 0.03  # latent distance to the nearest exemplar within which a colour counts as populated
 POPULATED_GRID = 64  # cells per side of the grid the populated region is sampled on
+NEIGHBOUR_QUANTILES = (0.005, 0.995)  # the share of an exemplar's points with a nearer / farther nearest neighbour
+# than the bounds of :meth:`Palette.neighbour_bounds_at_latent` (5 of its 1,024 points on each side)
 DECODE_NEIGHBOURS = 8  # exemplars interpolated by a decode
 DECODE_POWER = 4.0  # inverse-distance weight exponent of the decode (in PCF-code space)
 # decoding compares PCFs coarse-grained to bins this wide (r_max), chosen leaving each exemplar of the shipped corpus
@@ -148,7 +151,8 @@ class Palette:
 
         The arrays are read lazily: the file's bytes are read at once (so a later change to the file cannot mix
         two palettes), each array is decompressed and converted on its first use. Synthesis uses only ``radii``,
-        ``lut`` and ``dispersion_lut``; the exemplars and the feature reduction (about half the file) are for
+        ``lut``, ``dispersion_lut`` and the exemplars' positions with the bounds table beside the asset
+        (:meth:`neighbour_bounds_at_latent`); the rest of the exemplars' tables and the feature reduction are for
         decoding, so a synthesis never pays for them.
         """
         path = Path(path) if path is not None else DEFAULT_PALETTE
@@ -179,8 +183,8 @@ class Palette:
         return value
 
     def __getstate__(self) -> dict:
-        """Pickle the arrays themselves (all of them loaded), not the pending archive."""
-        for name in _CONVERTERS:
+        """Pickle the arrays themselves (all of them loaded, the neighbour bounds table too), not the pending archive."""
+        for name in (*_CONVERTERS, "exemplar_neighbour_bounds"):
             getattr(self, name)
         return {name: value for name, value in self.__dict__.items() if name != "_pending"}
 
@@ -217,6 +221,32 @@ class Palette:
     def dispersion_at_latent(self, z: np.ndarray) -> np.ndarray:
         """Count dispersions (..., m) for latent coordinates z (..., 2) in [0, 1], bilinear in their table."""
         return _bilinear(self.dispersion_lut, z)
+
+    def neighbour_bounds_at_latent(self, z: np.ndarray) -> np.ndarray:
+        """(..., 2) float32 nearest-neighbour distances (r_max of the exemplar's count) that bound the target's own: the
+        :data:`NEIGHBOUR_QUANTILES` of the NN distances of the exemplar nearest to each latent z (..., 2) in [0, 1] (a
+        preset's exemplar is its generator). Read from the table shipped beside the asset (:func:`read_neighbour_table`);
+        a palette without one (built in memory, or no table beside its file) measures each exemplar it needs on first
+        use (:func:`exemplar_neighbour_bounds`, about 2 ms each) and keeps it.
+        """
+        flat = np.asarray(z, np.float64).reshape(-1, 2)
+        exemplars = np.asarray(self.exemplar_z, np.float64)
+        squares = np.sum(exemplars**2, axis=1)
+        # squared distances up to each colour's own |z|^2, |e|^2 - 2 z.e: one product per 4,096 colours (~20 MB)
+        nearest = np.concatenate([np.argmin(squares - 2.0 * flat[i:i + 4096] @ exemplars.T, axis=1)
+                                  for i in range(0, len(flat), 4096)] + [np.zeros(0, np.int64)])
+        bounds = self.exemplar_neighbour_bounds
+        for index in np.unique(nearest[np.isnan(bounds[nearest, 0])]):
+            bounds[index] = exemplar_neighbour_bounds(self.exemplar_points[index])
+        return bounds[nearest].reshape(*np.shape(z)[:-1], 2)
+
+    @functools.cached_property
+    def exemplar_neighbour_bounds(self) -> np.ndarray:
+        """(N, 2) float32 each exemplar's nearest-neighbour bounds (:meth:`neighbour_bounds_at_latent`): the table
+        shipped beside the asset, or NaN for each exemplar not measured yet where there is none."""
+        pending = self.__dict__.get("_pending")
+        table = None if pending is None else read_neighbour_table(pending.path, pending.crc32("exemplar_points"))
+        return table if table is not None else np.full((len(self.exemplar_z), 2), np.nan, np.float32)
 
     def pcf(self, a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
         """PCFs (..., m) for chroma a, b (scalars or arrays of one shape) in [-128, 127]."""
@@ -347,6 +377,46 @@ class Palette:
         return min(self.preset_ab().items(), key=lambda item: np.hypot(item[1][0] - a, item[1][1] - b))[0]
 
 
+def exemplar_neighbour_bounds(points: np.ndarray) -> tuple[float, float]:
+    """The :data:`NEIGHBOUR_QUANTILES` of the nearest-neighbour distances of points (P, 2) on the unit torus, in units of
+    their r_max: one exemplar's bounds, measured (the reference of the shipped table, :func:`read_neighbour_table`)."""
+    from synthesis.neighbour_term import torus_nearest
+    from synthesis.pcf import r_max
+
+    nearest = torus_nearest(np.ascontiguousarray(points, np.float32)) / r_max(len(points))
+    low, high = np.quantile(nearest, NEIGHBOUR_QUANTILES)
+    return float(low), float(high)
+
+
+def neighbour_table_path(palette_path: str | os.PathLike) -> Path:
+    """The nearest-neighbour bounds table shipped beside a palette asset: ``palette.npz`` -> ``palette_neighbours.npz``."""
+    path = Path(palette_path)
+    return path.with_name(path.stem + "_neighbours.npz")
+
+
+def read_neighbour_table(palette_path: str | os.PathLike, points_crc32: int) -> np.ndarray | None:
+    """(N, 2) float32 exemplar bounds from the table beside the palette at ``palette_path`` (written by
+    ``python -m data_gen.palette_table --neighbours-only``, :func:`data_gen.palette_table.write_neighbour_table`),
+    None if there is none. ``points_crc32``: the CRC-32 of the palette's stored ``exemplar_points``.
+
+    Raises:
+        PatternshopError: the table is unreadable or stale (built from other exemplar points or quantiles).
+    """
+    path = neighbour_table_path(palette_path)
+    if not path.is_file():
+        return None
+    rebuild = "rebuild it with 'python -m data_gen.palette_table --neighbours-only'"
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            bounds, crc, quantiles = data["bounds"].astype(np.float32), int(data["points_crc32"]), data["quantiles"]
+    except _UNREADABLE as exc:
+        raise PatternshopError(f"{path}: not a readable neighbour bounds table ({exc}); {rebuild}") from exc
+    if crc != points_crc32 or not np.array_equal(quantiles, NEIGHBOUR_QUANTILES) or bounds.ndim != 2 or bounds.shape[1] != 2:
+        raise PatternshopError(f"{path}: stale neighbour bounds table (built for other exemplar points or quantiles than "
+                               f"{Path(palette_path).name}'s); {rebuild}")
+    return bounds
+
+
 def pcf_code(pcf: np.ndarray, radii: np.ndarray, width: float = DECODE_BIN_WIDTH) -> np.ndarray:
     """Decoding code (..., k) of PCFs (..., m) at radii (m,) (r_max units): their area-weighted means over tent bins
     ``width`` wide centred on 0, width, 2 width, ... up to the last radius (a smoother PCF: fewer, less noisy values)."""
@@ -403,6 +473,10 @@ class _PendingArrays:
             return _CONVERTERS[name](self.data, self.version)
         except _UNREADABLE as exc:
             raise PatternshopError(f"{self.path}: not a readable palette ({exc})") from exc
+
+    def crc32(self, name: str) -> int:
+        """The stored CRC-32 of array ``name`` (the archive's directory: nothing is decompressed)."""
+        return self.data.zip.getinfo(f"{name}.npy").CRC
 
 
 @functools.lru_cache(maxsize=4)

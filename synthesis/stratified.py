@@ -15,8 +15,6 @@ from functools import lru_cache
 
 import numpy as np
 
-from synthesis.fields import sample_grid
-
 MAX_ORDER = 11  # at most 2048 x 2048 cells
 CELLS_PER_POINT = 4  # at the densest cell, at least this many cells per point where MAX_ORDER allows
 
@@ -86,15 +84,22 @@ def _cell_grid(density: np.ndarray, side_px: int, domain: tuple[float, float], n
     order = min(MAX_ORDER, max(4, math.ceil(0.5 * math.log2(max(wanted, 1.0)))))
     side = 1 << order
     corners = np.arange(side) / side * extent
-    cx, cy = np.meshgrid(corners, corners, indexing="xy")
     # cells straddling the domain's edge count by their share inside it, sampled at their inside part's centre: a
     # domain thinner than a cell (a 1 x 10000 px map) still has mass (before, no centre was inside and every point
-    # went to one corner)
-    lo = np.stack([cx.reshape(-1), cy.reshape(-1)], axis=1)
-    hi = np.minimum(lo + extent / side, np.asarray(domain, np.float64))
-    share = np.prod(np.clip(hi - lo, 0.0, None), axis=1) * (side / extent) ** 2
-    values = sample_grid(density[..., None].astype(np.float64), 0.5 * (lo + np.maximum(hi, lo)), side_px)[:, 0]
-    return order, (np.maximum(values, 0.0) * share).reshape(side, side)
+    # went to one corner). Per axis (the grid is a tensor product), then bilinear as :func:`synthesis.fields.sample_grid` (the same
+    # arithmetic: the same values, without 2^order x 2^order coordinate arrays; 3-4x faster at 100k points)
+    stencils = []
+    for axis, size in enumerate(density.shape[::-1]):  # x (columns), then y (rows)
+        hi = np.minimum(corners + extent / side, domain[axis])
+        centre = np.minimum(np.maximum(0.5 * (corners + np.maximum(hi, corners)) * side_px - 0.5, 0.0), size - 1.0)
+        lower = np.minimum(centre.astype(np.int64), max(size - 2, 0))
+        stencils.append((np.clip(hi - corners, 0.0, None), lower, np.minimum(lower + 1, size - 1), centre - lower))
+    (share_x, c0, c1, tx), (share_y, r0, r1, ty) = stencils
+    grid, tx, ty, r0, r1 = density.astype(np.float64), tx[None, :], ty[:, None], r0[:, None], r1[:, None]
+    top = grid[r0, c0] * (1.0 - tx) + grid[r0, c1] * tx
+    bottom = grid[r1, c0] * (1.0 - tx) + grid[r1, c1] * tx
+    share = (share_x[None, :] * share_y[:, None]) * (side / extent) ** 2
+    return order, np.maximum(top * (1.0 - ty) + bottom * ty, 0.0) * share
 
 
 class StratifiedSampler:

@@ -69,7 +69,7 @@ import numpy as np
 
 from synthesis.conventions import POINTS_PER_INK, full_ink_points
 from synthesis.errors import PatternshopError, PatternshopWarning
-from synthesis.fields import DenominatorTracker, MapFields, sample_grid
+from synthesis.fields import DenominatorTracker, MapFields
 from synthesis.labmap import LabMap, pixels_of
 from synthesis.palette import Palette, load_palette
 from synthesis.points import PointSet
@@ -92,6 +92,7 @@ class Schedule:
     leash: float  # how far a point may move from its start, in local spacings (x free_step where not regular)
     tone: float = 0.0  # weight of the tone term (synthesis.density_term; 0: none)
     tone_scale: float = 1.0  # its blur, in mean spacings sqrt(A / n)
+    neighbours: float = 0.0  # weight of the nearest-neighbour term (synthesis.neighbour_term; 0: none)
 
     def rate(self, step: int, iterations: int) -> float:
         """The step (local spacings) of iteration ``step`` of ``iterations``: a cosine from ``step`` to ``final_step``."""
@@ -100,7 +101,7 @@ class Schedule:
 
 
 SCHEDULES = {"fast": Schedule("fast", iterations=180, refresh=20, step=0.1, final_step=0.01, free_step=3.0, leash=0.7,
-                              tone=1e4, tone_scale=3.0)}
+                              tone=1e4, tone_scale=3.0, neighbours=1e3)}
 # A run's figures are absurd (sound runs measured: constant, random, disc, text, line and 1 x 10000 maps, every preset):
 ABSURD_LOSS_GROWTH = 100.0  # a final loss this many times its start's (sound runs: at most 2.2x) ...
 LOSS_NOISE = 10.0  # ... or than this, whichever is larger (dead zones: a sound start can score 1.7e-5, its end 0.66)
@@ -182,7 +183,7 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: Ma
 
     Without ``fields`` (no target known) the start is independent (inhomogeneous Poisson).
     """
-    from synthesis.edgepcf import regularity
+    from synthesis.edgepcf import regularity_at
     from synthesis.stratified import StratifiedSampler, random_points
 
     density = lab_map.density().astype(np.float64)
@@ -191,8 +192,7 @@ def initial_points(lab_map: LabMap, n: int, rng: np.random.Generator, fields: Ma
     if fields is None:
         return independent
     stratified = StratifiedSampler(density, side_px, domain, n, rng).draw(n, rng)  # a random extent: no lattice
-    regular_s = regularity(sample_grid(fields.target, stratified, fields.side_px), fields.radii)
-    regular_i = regularity(sample_grid(fields.target, independent, fields.side_px), fields.radii)
+    regular_s, regular_i = regularity_at(fields, stratified), regularity_at(fields, independent)
     chosen = np.concatenate([stratified[rng.random(n) < regular_s], independent[rng.random(n) >= regular_i]])
     if len(chosen) > n:
         return chosen[np.sort(rng.choice(len(chosen), n, replace=False))]
@@ -305,7 +305,8 @@ def synthesize(
     from synthesis.edgepcf import WindowSampler, find_neighbourhoods
     from synthesis.density_term import DensityTerm
     from synthesis.edgepcf_fast import FastObjective
-    from synthesis.kernels import announce_compilation
+    from synthesis.kernels import announce_compilation, skip_blas_check
+    from synthesis.neighbour_term import NeighbourTerm
     from synthesis.step_fast import hold_in_ink, momentum_step
     from synthesis.stratified import spatial_order
 
@@ -323,12 +324,14 @@ def synthesize(
     n = point_count(lab_map) if n is None else n
     if n < 2:
         raise PatternshopError(f"need at least 2 points, got {n}")
+    skip_blas_check()
     announce_compilation()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     rng = np.random.default_rng(seed)
     palette = palette or load_palette()
     fields = MapFields.build(lab_map, n, palette, guide=guide)
     tone = DensityTerm(lab_map, fields, plan.tone, plan.tone_scale) if plan.tone > 0 else None
+    nearest = NeighbourTerm(fields, plan.neighbours)
     xy = initial_points(lab_map, n, rng, fields) if start_points is None else start_points
     if fields.nearest_ink is not None:  # a start drawn across a pixel edge into the white
         hold_in_ink_reference(xy, np.zeros_like(xy), fields.nearest_ink, fields.ink_side_px)
@@ -354,6 +357,8 @@ def synthesize(
             objective = FastObjective(hood, threads, workspace)
             freedom = 1.0 + (plan.free_step - 1.0) * (1.0 - hood.regularity)
             step_length = hood.spacing * hood.structure * freedom
+            if nearest.active:
+                nearest.refresh(hood.offsets, hood.neighbours, hood.anchor, hood.spacing, freedom)
             leash = plan.leash * hood.spacing * freedom
             if not step_length.any():  # white noise everywhere: no point can move, the start is the result
                 if on_iteration is not None:
@@ -363,6 +368,8 @@ def synthesize(
         loss, gradient = objective(xy)
         if tone is not None and tone.active:
             tone(xy, gradient)  # its gradient added; the loss recorded stays the PCF objective's (see absurd_run)
+        if nearest.active:
+            nearest(xy, gradient)  # likewise
         losses.append(loss)
         second = beta2 * second + (1 - beta2) * float(np.vdot(gradient, gradient)) / gradient.size
         travelled += rate / plan.step

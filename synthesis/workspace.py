@@ -22,6 +22,7 @@ class Workspace:
 
     def __init__(self) -> None:
         self._buffers: dict[str, np.ndarray] = {}
+        self._asked: dict[str, int] = {}  # elements last asked for, by name
 
     def empty(self, name: str, shape: int | tuple[int, ...], dtype: type | np.dtype = np.float64) -> np.ndarray:
         """An uninitialised C-contiguous array of ``shape`` and ``dtype`` backed by buffer ``name``."""
@@ -31,7 +32,13 @@ class Workspace:
         if buffer is None or buffer.dtype != np.dtype(dtype) or buffer.size < size:
             buffer = np.empty(size if buffer is None else int(size * GROWTH), dtype)
             self._buffers[name] = buffer
+        self._asked[name] = size
         return buffer[:size].reshape(shape)
+
+    def asked(self, name: str) -> int:
+        """Elements the last request for buffer ``name`` asked for (0 before the first): ask again for fewer to record
+        what was used of a larger request (the contents stay)."""
+        return self._asked.get(name, 0)
 
 
 def scratch(workspace: Workspace | None) -> Workspace:

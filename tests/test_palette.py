@@ -12,7 +12,8 @@ import pytest
 
 from data_gen.embedding import compressed, hue_warp, idw_encode, kde_locality, orient, pin_hues, trustworthiness
 from synthesis.errors import PatternshopError
-from synthesis.palette import DEFAULT_PALETTE, LUT_SIZE, OUTSIDE_CORPUS, Palette, ab_to_latent, hue_chroma, latent_to_ab
+from synthesis.palette import (DEFAULT_PALETTE, LUT_SIZE, OUTSIDE_CORPUS, Palette, ab_to_latent, exemplar_neighbour_bounds,
+                               hue_chroma, latent_to_ab, neighbour_table_path)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -63,6 +64,41 @@ def test_decoding_is_recorded_without_touching_the_asset(small, tmp_path):
     assert main(["--palette", str(asset), "--decoding-only"]) == 0
     assert asset.read_bytes() == (tmp / "palette.npz").read_bytes()  # trained models record the asset's sha256
     assert json.loads(asset.with_suffix(".json").read_text())["decoding"]["leave_one_out_ab_median"] == record["decoding"]["leave_one_out_ab_median"]
+
+
+def test_neighbour_table_is_built_beside_the_asset_and_equals_a_fresh_measurement(small, tmp_path):
+    from data_gen.palette_table import main
+
+    palette, record, tmp = small
+    assert record["neighbours"]["table"] == neighbour_table_path(tmp / "palette.npz").name  # the build writes it
+    table = palette.exemplar_neighbour_bounds
+    assert table.shape == (len(palette.exemplar_z), 2) and not np.isnan(table).any()
+    for index in range(0, len(table), 7):
+        assert np.array_equal(table[index], np.float32(exemplar_neighbour_bounds(palette.exemplar_points[index])))
+    asset = tmp_path / "palette.npz"
+    asset.write_bytes((tmp / "palette.npz").read_bytes())
+    assert main(["--palette", str(asset), "--neighbours-only"]) == 0
+    assert asset.read_bytes() == (tmp / "palette.npz").read_bytes()  # trained models record the asset's sha256
+    np.testing.assert_array_equal(Palette.load(asset).exemplar_neighbour_bounds, table)
+    assert json.loads(asset.with_suffix(".json").read_text())["neighbours"]["command"].endswith("--neighbours-only")
+
+
+def test_a_missing_neighbour_table_is_measured_and_a_stale_one_is_an_error(small, tmp_path):
+    palette, _, tmp = small
+    asset = tmp_path / "palette.npz"
+    asset.write_bytes((tmp / "palette.npz").read_bytes())
+    bare = Palette.load(asset)  # no table beside it: the exemplars a map uses are measured on first use
+    z = palette.exemplar_z[[0, 5]] + 1e-4
+    np.testing.assert_array_equal(bare.neighbour_bounds_at_latent(z), palette.neighbour_bounds_at_latent(z))
+    assert np.isnan(bare.exemplar_neighbour_bounds[:, 0]).sum() == len(palette.exemplar_z) - 2
+    with np.load(neighbour_table_path(tmp / "palette.npz")) as shipped_table:
+        np.savez(neighbour_table_path(asset), bounds=shipped_table["bounds"], quantiles=shipped_table["quantiles"],
+                 points_crc32=shipped_table["points_crc32"] + 1)  # as if measured on other exemplar points
+    with pytest.raises(PatternshopError, match="stale neighbour bounds table.*--neighbours-only"):
+        Palette.load(asset).neighbour_bounds_at_latent(z)
+    neighbour_table_path(asset).write_bytes(b"not a zip")
+    with pytest.raises(PatternshopError, match="not a readable neighbour bounds table"):
+        Palette.load(asset).neighbour_bounds_at_latent(z)
 
 
 def test_decoding_an_exemplar_returns_its_coordinate(small):
@@ -237,6 +273,19 @@ def test_shipped_asset_shapes_ranges_and_provenance():
     assert record["extractor"]["name"] == palette.extractor["name"]
     for key in ("command", "config", "metrics", "timings_s", "versions", "commit", "built"):
         assert key in record
+
+
+@shipped
+def test_shipped_neighbour_table_equals_a_fresh_measurement():
+    palette = Palette.load()
+    table = palette.exemplar_neighbour_bounds  # palette_neighbours.npz beside the asset
+    assert table.shape == (len(palette.exemplar_z), 2) and not np.isnan(table).any()
+    for index in (0, 150, 300, 450):
+        assert np.array_equal(table[index], np.float32(exemplar_neighbour_bounds(palette.exemplar_points[index])))
+    for name in ("blue", "green", "red", "lattice"):
+        index = palette.presets[name]["exemplar"]
+        assert np.array_equal(table[index], np.float32(exemplar_neighbour_bounds(palette.exemplar_points[index])))
+        assert np.array_equal(palette.neighbour_bounds_at_latent(ab_to_latent(palette.preset(name))), table[index])
 
 
 @shipped

@@ -24,7 +24,9 @@ from synthesis.points import PointSet
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAVY_MODULES = ("torch", "matplotlib", "sklearn")  # decoding, plotting and training only
-SYNTHESIS_TABLES = {"radii", "lut", "dispersion_lut"}  # the palette arrays synthesis reads
+# the palette arrays synthesis reads; the exemplars' positions for the nearest-neighbour term's bounds, whose values
+# come from the table beside the asset (palette_neighbours.npz), not measured on the exemplars' points at start-up
+SYNTHESIS_TABLES = {"radii", "lut", "dispersion_lut", "exemplar_z"}
 shipped = pytest.mark.skipif(not DEFAULT_PALETTE.exists(), reason="no shipped palette asset")
 
 
@@ -85,6 +87,25 @@ def test_a_damaged_table_is_a_palette_error_when_it_is_read(tmp_path):
         palette.components  # noqa: B018
     with pytest.raises(PatternshopError, match="dispersion_lut missing"):
         Palette.load(short)
+
+
+@shipped
+def test_synthesis_imports_neither_scipy_ndimage_nor_scipy_linalg():
+    """Both took 0.1-0.3 s of every synthesis's start-up (scipy.linalg through numba's BLAS check,
+    :func:`synthesis.kernels.skip_blas_check`); a kernel using BLAS still works afterwards."""
+    code = ("import sys\n"
+            "import numba\n"
+            "import numpy as np\n"
+            "import patternshop as ps\n"
+            "seen = []\n"
+            "def progress(done, total, xy):\n"
+            "    seen.append(sorted(m for m in ('scipy.ndimage', 'scipy.linalg') if m in sys.modules))\n"
+            f"ps.synthesize({str(ROOT / 'examples' / 'logo.tif')!r}, points=300, iterations=2, progress=progress)\n"
+            "dot = numba.njit(lambda a, b: np.dot(a, b))\n"
+            "print(seen[0], seen[-1], dot(np.ones(3), np.arange(3.0)))\n")
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split("\n")[-2] == "[] [] 3.0"
 
 
 def test_infer_degeneracy_check_leaves_numba_unimported():

@@ -49,6 +49,33 @@ def test_cell_grid_finds_exactly_the_tree_neighbours(periodic):
         np.testing.assert_allclose([ours[k] for k in theirs], list(theirs.values()), rtol=1e-12)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_cell_grid_queries_in_the_room_of_the_last_one(threads, monkeypatch):
+    """A named query writes its lists in one pass into the room the last one of its name took (each run of centres
+    from its share of the room, then side by side); one that needs more counts first: the lists are the same."""
+    import numba
+
+    from synthesis import cells
+
+    scan, passes = cells._scan, []
+    monkeypatch.setattr(cells, "_scan", lambda *args: (passes.append(1), scan(*args)))
+    rng, domain, workspace, previous = np.random.default_rng(5), (1.0, 0.7), Workspace(), numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        calls = []
+        for count, reach in ((3000, 0.03), (3000, 0.03), (2000, 0.02), (4000, 0.05)):  # the last needs more room
+            xy = rng.random((count, 2)) * domain
+            fresh = CellGrid(xy, domain, 0.03).query(xy, reach, exclude=np.arange(count))
+            passes.clear()
+            reused = CellGrid(xy, domain, 0.03).query(xy, reach, exclude=np.arange(count), workspace=workspace, name="p")
+            calls.append(len(passes))
+            for mine, theirs in zip(reused, fresh):
+                np.testing.assert_array_equal(mine, theirs)
+    finally:
+        numba.set_num_threads(previous)
+    assert calls == [2, 1, 1, 3]
+
+
 def test_cell_grid_counts_each_point_once_on_a_small_torus():
     xy = np.random.default_rng(0).random((100, 2))
     offsets, index, _ = CellGrid(xy, (1.0, 1.0), 0.1, periodic=True).query(xy[:5], 0.6)  # reach beyond half the side
@@ -300,6 +327,52 @@ def test_window_sums_and_slope_levels_equal_plain_numpy():
     assert levels[~red, 12:20].mean() > 1.2  # ... and too many of the blue half's: the slopes follow the pattern
 
 
+def test_neighbour_term_fast_path_equals_the_reference():
+    from synthesis.neighbour_term import NeighbourTerm
+
+    fields = MapFields.build(split_map(), 1200, load_palette())  # two spacings and targets: asymmetric pair lists too
+    xy = np.random.default_rng(5).random((1200, 2)) * fields.domain
+    xy[1], xy[3] = xy[0] + [1e-3, 0.0], xy[2]  # a close pair in the blue half and a stacked one (no direction)
+    hood = find_neighbourhoods(fields, xy)
+    term = NeighbourTerm(fields, 1e3)
+    term.refresh(hood.offsets, hood.neighbours, hood.anchor, hood.spacing)
+    moved = xy + np.random.default_rng(6).normal(0.0, 1e-3, xy.shape)
+    moved[3] = moved[2]
+    loss, gradient = term.reference(moved)
+    added = np.full((1200, 2), 0.25)
+    assert term(moved, added) == pytest.approx(loss, rel=1e-12)
+    np.testing.assert_allclose(added - 0.25, gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())
+    assert np.count_nonzero(gradient.any(axis=1)) > 100  # barrier and pulls both at work
+    assert term(moved) == pytest.approx(loss, rel=1e-12)
+
+
+def test_neighbour_term_short_lists_equal_plain_numpy():
+    from synthesis.neighbour_term import short_lists, short_lists_reference
+
+    fields = MapFields.build(split_map(), 1200, load_palette())
+    xy = np.random.default_rng(7).random((1200, 2)) * fields.domain
+    xy[1] = xy[0]  # a stacked pair: ties at the nearest
+    hood = find_neighbourhoods(fields, xy)
+    lower, upper, slack = 0.76 * hood.spacing, 1.03 * hood.spacing, 0.25 * hood.spacing
+    fast = short_lists(xy, hood.offsets, hood.neighbours, lower, upper, slack)
+    plain = short_lists_reference(xy, hood.offsets, hood.neighbours, lower, upper, slack)
+    for mine, theirs in zip(fast, plain):
+        np.testing.assert_array_equal(mine, theirs)
+    assert 0 < fast[2].sum() < len(xy) and 0 < len(fast[1]) < len(hood.neighbours)  # candidates and a real filter
+
+
+def test_torus_nearest_neighbours_equal_plain_numpy():
+    from synthesis.neighbour_term import torus_nearest, torus_nearest_reference
+
+    points = np.random.default_rng(8).random((500, 2)).astype(np.float32)
+    points[1] = points[0]  # a stacked pair
+    points[2] = [0.999, 0.5]  # a pair across the torus' seam
+    points[3] = [0.001, 0.5]
+    nearest = torus_nearest(points)
+    np.testing.assert_array_equal(nearest, torus_nearest_reference(points))  # both in float32: the same bounds
+    assert nearest[0] == 0.0 and nearest[2] == pytest.approx(0.002, abs=1e-6)
+
+
 def test_tone_term_fast_path_equals_the_reference():
     from synthesis.density_term import DensityTerm
 
@@ -313,3 +386,53 @@ def test_tone_term_fast_path_equals_the_reference():
     assert fast_loss == pytest.approx(loss, rel=1e-12)
     np.testing.assert_allclose(added - 0.25, gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())  # added into
     assert term(xy) == pytest.approx(loss, rel=1e-12)
+
+
+def test_image_filters_equal_scipy_ndimage():
+    """The synthesis path's own filters (scipy.ndimage is not imported before a synthesis's first iteration) against
+    scipy's: the tone term's Gaussian blur within 1e-13 and its tent filter within 1e-14 (rounding: another summation
+    order), the flatness test's max - min filter and the nearest-ink feature transform's distances exactly."""
+    from scipy import ndimage
+
+    from synthesis.density_term import TENT, _tent_filter
+    from synthesis.fields import _window_spread
+    from synthesis.fields_fast import gaussian_blur, nearest_true
+
+    rng = np.random.default_rng(11)
+    for shape, sigma in [((102, 102), (3.0, 3.0)), ((7, 40), (2.5, 3.7)), ((1, 9), (3.0, 3.0)), ((30, 2), (0.6, 5.0))]:
+        values = rng.random(shape) - 0.3
+        scipy_blur = ndimage.gaussian_filter(values, sigma, mode="constant", truncate=3.0)
+        np.testing.assert_allclose(gaussian_blur(values, sigma, 3.0), scipy_blur, rtol=0, atol=1e-13)
+        tent = ndimage.correlate1d(ndimage.correlate1d(values, TENT, axis=0, mode="constant"), TENT, axis=1, mode="constant")
+        np.testing.assert_allclose(_tent_filter(values), tent, rtol=0, atol=1e-14)
+        for half in (1, 2, 5, 64):
+            size = 2 * half + 1
+            spread = ndimage.maximum_filter(values, size, mode="nearest") - ndimage.minimum_filter(values, size, mode="nearest")
+            np.testing.assert_array_equal(_window_spread(values, half), spread)
+    for shape, share in [((60, 80), 0.01), ((256, 256), 0.3), ((1, 100), 0.05), ((100, 1), 0.05), ((40, 40), 0.0)]:
+        mask = rng.random(shape) < share
+        mask.flat[7] = True
+        nearest = nearest_true(mask)
+        assert mask[nearest[..., 0], nearest[..., 1]].all()
+        rows, cols = np.indices(shape)
+        squared = (nearest[..., 0] - rows) ** 2 + (nearest[..., 1] - cols) ** 2
+        np.testing.assert_array_equal(squared, np.rint(ndimage.distance_transform_edt(~mask) ** 2))
+
+
+@pytest.mark.parametrize("extent", [1.0, 1.37])
+def test_stratified_cell_masses_are_the_density_sampled_at_the_cells(extent):
+    """The start's cell grid, computed per axis, against bilinear samples (``sample_grid``) at every cell's centre
+    inside the domain times its share there, on a map with ink, white and a thin strip of domain in the last cells."""
+    from synthesis.stratified import _cell_grid
+
+    density = np.zeros((37, 50))
+    density[5:30, 10:45] = np.linspace(0.1, 1.0, 35)
+    side_px, domain = 50, (1.0, 37 / 50)
+    order, mass = _cell_grid(density, side_px, domain, 3000, extent)
+    side = 1 << order
+    lo = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="xy"), axis=-1).reshape(-1, 2) / side * extent
+    hi = np.minimum(lo + extent / side, domain)
+    share = np.prod(np.clip(hi - lo, 0.0, None), axis=1) * (side / extent) ** 2
+    values = sample_grid(density[..., None], 0.5 * (lo + np.maximum(hi, lo)), side_px)[:, 0]
+    assert 0 < np.count_nonzero(share) < side * side  # cells beyond the domain: the comparison covers both kinds
+    np.testing.assert_array_equal(mass, (np.maximum(values, 0.0) * share).reshape(side, side))

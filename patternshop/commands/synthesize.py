@@ -86,7 +86,6 @@ def run_synthesize(args: argparse.Namespace) -> None:
         check_memory(args, render_bytes(args.png_width, args.png_width), f"a {args.png_width} px wide PNG")
 
     from patternshop import api
-    from synthesis.tone import density_fidelity
 
     lab_map = api.read_map(args.map)
     n = args.points if args.points is not None else api.point_count(lab_map, args.points_per_ink)
@@ -104,6 +103,8 @@ def run_synthesize(args: argparse.Namespace) -> None:
     finally:
         if preview is not None:
             preview.unlink(missing_ok=True)
+    from synthesis.tone import density_fidelity  # after the run: scipy.ndimage's import is not start-up
+
     points = result.points
     report = result.report() | {"map": args.map, "seed": args.seed, "dot_sizes": args.dot_sizes} | density_fidelity(points, lab_map)
     with all_or_nothing():  # points, PNG, SVG and report replace the old ones together, or none does
