@@ -189,6 +189,17 @@ def test_convert_usage_errors(tmp_path, capsys):
     assert status == 2 and "no maps" in err
 
 
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_convert_bad_model_stops_before_any_output(workers, points_dir, tmp_path, capsys):
+    """A missing or unreadable model: one line, exit 2, no output folder, with one worker or a pool of them."""
+    (tmp_path / "junk.onnx").write_bytes(b"not a model")
+    for model, message in ((tmp_path / "missing.onnx", "no such model file"), (tmp_path / "junk.onnx", "not a readable ONNX model")):
+        status, err = run(["convert", str(points_dir), str(tmp_path / "maps"), "--model", str(model), "--workers", workers,
+                           "--batch-size", "1", "--no-progress"], capsys)
+        assert status == 2 and message in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "maps").exists()
+
+
 # --- edits --------------------------------------------------------------------
 def test_set_correlation_only_inside_the_rectangle():
     lab_map = flat_map(10, 20)  # domain 1 x 0.5, pixel size 0.05
