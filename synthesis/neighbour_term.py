@@ -73,6 +73,8 @@ class NeighbourTerm:
         and the bounds at the refresh positions ``anchor`` (n, 2) with local spacings ``spacing`` (n,) in map units;
         keep the pairs within reach of the bounds (:func:`short_lists`, a slack of :data:`SLACK` x ``freedom`` (n,), the
         points' step factor, spacings)."""
+        # the last refresh's arrays go before the new ones are built (300k points, 2 threads: peak 0.990 -> 0.984 GB)
+        self.offsets = self.neighbours = self.lower = self.upper = self.spacing = self.nearest = self.pull = None
         bounds = sample_grid(self.fields.neighbour_bounds, anchor, self.fields.side_px).astype(np.float64)
         self.spacing = np.asarray(spacing, np.float64)
         self.lower = bounds[:, 0] * self.spacing  # map units

@@ -13,8 +13,9 @@ MAP_BYTES_PER_PIXEL = 150  # read_map with its colour conversion (1000 x 1000 px
 TEXT_POINTS_BYTES_PER_FILE_BYTE = 12  # read_points of text (1M points, 24 MB: 0.2 GB peak)
 NPY_POINTS_BYTES_PER_FILE_BYTE = 4
 SYNTHESIS_BASE = 0.3e9  # synthesis (20k / 100k / 1M points on a 256^2 map: 0.29 / 0.40 / 1.43 GB on 1 thread;
-# bench_speed.py with 2 threads: 10k 0.28, 100k 0.41, 300k 0.75, 1M 1.53 GB)
-SYNTHESIS_BYTES_PER_POINT = 1.4e3  # measured 1.25e3, plus each pair's bin and scaled guide kept between the window sums and the gradient (6 B x about 23 pairs)
+# bench_speed.py with 2 threads: 10k 0.28, 100k 0.41, 300k 0.75, 1M 1.53 GB; synthesis v3 (f5a0055): 100k 0.47,
+# 300k 0.99, 1M 2.19 GB; 2.35 GB in a run that compiled the kernels)
+SYNTHESIS_BYTES_PER_POINT = 2.4e3  # v3's 300k on 2 threads needs 2.26e3 over the base and the 256^2 map, 1M 2.04e3
 SYNTHESIS_BYTES_PER_PIXEL = 180
 RENDER_BYTES_PER_PIXEL = 100  # render_png: supersampled span counts and the grey image, per output pixel
 NETWORK_BYTES_PER_RASTER_PIXEL = 260  # ONNX Runtime, default generator exported fused, 8 symmetries averaged, zoomed readings (a 2176^2 px raster: 1.40 GB; 1 symmetry 1.09 GB)
