@@ -162,35 +162,6 @@ def short_lists_reference(xy: np.ndarray, offsets: np.ndarray, neighbours: np.nd
     return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), neighbours[keep], candidate
 
 
-@numba.njit(cache=True)
-def torus_nearest(points):  # pragma: no cover - jitted
-    """(P,) float64 nearest-neighbour distance of each of the points (P, 2) float32 on the unit torus, computed in
-    float32 as :func:`torus_nearest_reference` does (the same values)."""
-    n = len(points)
-    best = np.full(n, np.inf, np.float32)
-    for i in range(n):
-        for j in range(i + 1, n):
-            dx = points[i, 0] - points[j, 0]
-            dx -= np.rint(dx)
-            dy = points[i, 1] - points[j, 1]
-            dy -= np.rint(dy)
-            squared = dx * dx + dy * dy
-            best[i] = min(best[i], squared)
-            best[j] = min(best[j], squared)
-    return np.sqrt(best.astype(np.float64))
-
-
-def torus_nearest_reference(points: np.ndarray) -> np.ndarray:
-    """Plain numpy version of :func:`torus_nearest` (points (P, 2) float32; O(P^2) memory)."""
-    squared = np.zeros((len(points), len(points)), np.float32)
-    for axis in (0, 1):
-        offset = points[:, None, axis] - points[None, :, axis]
-        offset -= np.rint(offset)
-        squared += offset * offset
-    np.fill_diagonal(squared, np.inf)
-    return np.sqrt(squared.min(axis=1).astype(np.float64))
-
-
 @numba.njit(parallel=True, cache=True)
 def _short_counts(xy, offsets, neighbours, lower, upper, slack, keep, candidate):  # pragma: no cover - jitted
     """Mark the pairs :func:`short_lists` keeps in ``keep`` (P,) and the candidates (n,); returns kept counts (n,)."""

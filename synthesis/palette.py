@@ -380,10 +380,12 @@ class Palette:
 def exemplar_neighbour_bounds(points: np.ndarray) -> tuple[float, float]:
     """The :data:`NEIGHBOUR_QUANTILES` of the nearest-neighbour distances of points (P, 2) on the unit torus, in units of
     their r_max: one exemplar's bounds, measured (the reference of the shipped table, :func:`read_neighbour_table`)."""
-    from synthesis.neighbour_term import torus_nearest
+    from scipy.spatial import cKDTree
+
     from synthesis.pcf import r_max
 
-    nearest = torus_nearest(np.ascontiguousarray(points, np.float32)) / r_max(len(points))
+    wrapped = np.mod(np.asarray(points, np.float64), 1.0)  # cKDTree's periodic box takes coordinates in [0, 1)
+    nearest = cKDTree(wrapped, boxsize=1.0).query(wrapped, k=2)[0][:, 1] / r_max(len(points))  # [:, 0]: itself
     low, high = np.quantile(nearest, NEIGHBOUR_QUANTILES)
     return float(low), float(high)
 

@@ -361,18 +361,6 @@ def test_neighbour_term_short_lists_equal_plain_numpy():
     assert 0 < fast[2].sum() < len(xy) and 0 < len(fast[1]) < len(hood.neighbours)  # candidates and a real filter
 
 
-def test_torus_nearest_neighbours_equal_plain_numpy():
-    from synthesis.neighbour_term import torus_nearest, torus_nearest_reference
-
-    points = np.random.default_rng(8).random((500, 2)).astype(np.float32)
-    points[1] = points[0]  # a stacked pair
-    points[2] = [0.999, 0.5]  # a pair across the torus' seam
-    points[3] = [0.001, 0.5]
-    nearest = torus_nearest(points)
-    np.testing.assert_array_equal(nearest, torus_nearest_reference(points))  # both in float32: the same bounds
-    assert nearest[0] == 0.0 and nearest[2] == pytest.approx(0.002, abs=1e-6)
-
-
 def test_tone_term_fast_path_equals_the_reference():
     from synthesis.density_term import DensityTerm
 
