@@ -103,15 +103,15 @@ class CellGrid:
         self.sorted_xy = points[self.order]
 
     def query(self, centres: np.ndarray, reach: np.ndarray | float, exclude: np.ndarray | None = None,
-              distances: bool = True, workspace: Workspace | None = None,
-              name: str = "query") -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+              distances: bool = True, workspace: Workspace | None = None, name: str = "query",
+              distance_name: str = "query.distance") -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Points within ``reach`` (scalar or (C,), inclusive) of each centre (C, 2), as compact lists.
 
         Returns offsets (C + 1,) int64 (centre c's entries are ``offsets[c]:offsets[c + 1]``),
         indices (E,) int32 and distances (E,) float64 (None unless ``distances``).
         ``exclude`` (C,): a point index each centre leaves out (itself), or -1.
-        The arrays come from ``workspace`` buffers ``name.*`` when given (the distances from one
-        buffer shared by all queries: overwritten by the next query).
+        The arrays come from ``workspace`` buffers ``name.*`` when given (the distances from buffer
+        ``distance_name``, one shared by all queries: overwritten by the next query).
         """
         workspace = scratch(workspace)
         centres = np.ascontiguousarray(centres, np.float64).reshape(-1, 2)
@@ -130,7 +130,7 @@ class CellGrid:
         room = int(REUSED_ROOM * workspace.asked(f"{name}.index"))
         if room:
             index = workspace.empty(f"{name}.index", room, np.int32)
-            distance = workspace.empty("query.distance", room) if distances else np.empty(0)
+            distance = workspace.empty(distance_name, room) if distances else np.empty(0)
             slabs = np.arange(runs + 1) * room // runs
             _scan(*args, slabs, index, distance)
             totals = np.add.reduceat(offsets[1:], edges[:-1]) if count else np.zeros(runs, np.int64)
@@ -145,7 +145,7 @@ class CellGrid:
         _scan(*args, np.zeros(runs + 1, np.int64), np.empty(0, np.int32), np.empty(0))  # count only
         np.cumsum(offsets, out=offsets)
         index = workspace.empty(f"{name}.index", offsets[-1], np.int32)
-        distance = workspace.empty("query.distance", offsets[-1]) if distances else np.empty(0)
+        distance = workspace.empty(distance_name, offsets[-1]) if distances else np.empty(0)
         _scan(*args, offsets[edges], index, distance)  # the counts again, over the cumulated ones
         np.cumsum(offsets, out=offsets)
         return offsets, index, distance if distances else None

@@ -25,9 +25,25 @@ map's ink per cell filtered by the tent, ``[1/8, 3/4, 1/8]`` per axis (the count
 expected to splat; padding cells get the ink of their inner neighbour's outer half); the pad cells' regularity is
 their neighbour's. Its gradient is
 the bilinear gradient at each point of ``u = 2 weight / (cells v) R G G R (c - t)``
-(``G`` is symmetric, zero padding included). :class:`DensityTerm` computes both, with
-numba kernels for the splat and the gather (:mod:`synthesis.fields_fast`) and
-:meth:`DensityTerm.reference`, plain numpy, that the tests compare them with.
+(``G`` is symmetric, zero padding included).
+
+**Edges.** ``G`` crosses the map's edges: on scikit-image's astronaut a dark strip two spacings wide beside a
+paper-white panel held one column of points where it needed two, and the panel the rest, which the blur took for the
+same ink. Where the map has edges, a share :data:`EDGE_SHARE` of the loss compares ``r = R (c - t)`` through an
+edge-stopping blur ``B`` instead (:func:`edge_blur`): along the rows, then the columns, each tap of ``G`` times the
+transmittances ``tau`` of the neighbouring cells it crosses (:func:`transmittances`: ``exp(-(log((i_a + f) / (i_b +
+f)) / log 3)^2 - ((R_a - R_b) / 0.5)^2)``, ``i`` the cells' mean ink, ``f`` = :data:`INK_FLOOR`), each cell's square
+divided by ``rho``, its blurred Poisson variance under ``B`` over that under ``G`` (``(B o B) 1 / (G o G) 1``, squared
+taps and transmittances), so a cell that edges cut off weighs as much as its own noise:
+
+    L = weight * sum_cells [(1 - e) (G r)^2 + e (B r)^2 / rho] / (Gh Gw v),
+    u = 2 weight / (cells v) R [(1 - e) G G r + e B' (B r / rho)]     (B' the transpose: the columns first)
+
+The plain share keeps moving ink between regions that edges part (``B`` alone, e = 1, moves it across an edge only
+through the points at the edge: astronaut, 5,000 points, seed 0, density PSNR at 4 spacings 51.7 -> 39.7 dB, the
+flag's stripes short of points). A map without an edge (every ``tau`` 1: a constant map) takes ``G`` alone, the same
+loss bit for bit. :class:`DensityTerm` computes both, with numba kernels for the splat, the gather and ``B``'s passes
+(:mod:`synthesis.fields_fast`) and :meth:`DensityTerm.reference`, plain numpy, that the tests compare them with.
 """
 
 from __future__ import annotations
@@ -37,7 +53,7 @@ import math
 import numpy as np
 
 from synthesis.fields import MapFields, _area_matrix
-from synthesis.fields_fast import gaussian_blur
+from synthesis.fields_fast import edge_pass, gaussian_blur, gaussian_taps
 from synthesis.labmap import LabMap
 
 BLUR_CELLS = 3.0  # the blur's standard deviation in grid cells (cells of ``scale / 3`` mean spacings: a tent splat
@@ -46,6 +62,10 @@ MAX_CELLS = 2048  # per side
 TRUNCATE = 3.0  # the blur's reach, in its standard deviations
 PAD = 1  # cells beyond each side of the domain (see the module docstring, "Border")
 TENT = np.array([0.125, 0.75, 0.125])  # a cell's share of its tent's mass per axis: its own and its neighbours'
+INK_FLOOR = 0.05  # density added to two neighbouring cells' mean ink before their log ratio (see "Edges")
+INK_STEP = math.log(3.0)  # the log ink ratio of two neighbouring cells that passes exp(-1) of the blur across them
+REGULARITY_STEP = 0.5  # likewise a step of the target's regularity
+EDGE_SHARE = 0.5  # the edge-stopping blur's share of the loss where the map has edges (the plain blur's: the rest)
 
 
 class DensityTerm:
@@ -83,17 +103,32 @@ class DensityTerm:
         self.target = _tent_filter(np.pad(self.target, PAD))
         self.mask = np.pad(self.mask, PAD, mode="edge")
         self.shape = self.target.shape
+        self.taps = (gaussian_taps(self.sigma[0], TRUNCATE), gaussian_taps(self.sigma[1], TRUNCATE))
+        self.tau = transmittances(np.pad(ink, PAD, mode="edge"), self.mask)
+        self.noise = None
+        if self.tau is not None:  # each cell's Poisson variance of its blurred count over the plain blur's
+            ones, squared = np.ones(self.shape), tuple(t * t for t in self.taps)
+            self.noise = (edge_blur(ones, squared, tuple(t * t for t in self.tau))
+                          / edge_blur(ones, squared, tuple(np.ones_like(t) for t in self.tau)))
         self.active = self.weight > 0 and bool(self.mask.max() > 0)
 
     def _blur(self, values: np.ndarray) -> np.ndarray:
-        return gaussian_blur(values, self.sigma, TRUNCATE)  # scipy.ndimage.gaussian_filter's, mode "constant"
+        return gaussian_blur(values, self.sigma, TRUNCATE, taps=self.taps)  # scipy.ndimage.gaussian_filter's, mode "constant"
 
-    def _adjoint(self, counts: np.ndarray) -> tuple[float, np.ndarray]:
-        """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell."""
-        blurred = self._blur(self.mask * (counts - self.target))
+    def _adjoint(self, counts: np.ndarray, fast: bool = True) -> tuple[float, np.ndarray]:
+        """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell (``fast``: numba's edge blur)."""
+        residual = self.mask * (counts - self.target)
+        blurred = self._blur(residual)
         size = self.cells
-        loss = self.weight * float(np.vdot(blurred, blurred)) / (size * self.variance)
-        return loss, (2.0 * self.weight / (size * self.variance)) * self.mask * self._blur(blurred)
+        if self.tau is None:
+            loss = self.weight * float(np.vdot(blurred, blurred)) / (size * self.variance)
+            return loss, (2.0 * self.weight / (size * self.variance)) * self.mask * self._blur(blurred)
+        edged = edge_blur(residual, self.taps, self.tau, fast)
+        scaled = edged / self.noise
+        plain = 1.0 - EDGE_SHARE
+        loss = self.weight * (plain * float(np.vdot(blurred, blurred)) + EDGE_SHARE * float(np.vdot(edged, scaled)))
+        u = plain * self._blur(blurred) + EDGE_SHARE * edge_blur(scaled, self.taps, self.tau, fast, adjoint=True)
+        return loss / (size * self.variance), (2.0 * self.weight / (size * self.variance)) * self.mask * u
 
     def __call__(self, xy: np.ndarray, gradient: np.ndarray | None = None) -> float:
         """Loss at xy (n, 2); adds its gradient into ``gradient`` (n, 2) when given (numba kernels)."""
@@ -127,11 +162,59 @@ class DensityTerm:
 
     def reference(self, xy: np.ndarray) -> tuple[float, np.ndarray]:
         """Loss and gradient (n, 2) at xy (n, 2), plain numpy (the reference of :meth:`__call__`)."""
-        loss, u = self._adjoint(self.counts_reference(xy))
+        loss, u = self._adjoint(self.counts_reference(xy), fast=False)
         i0, i1, j0, j1, fu, fv = self._corners(xy)
         gx = ((1 - fv) * (u[i0, j1] - u[i0, j0]) + fv * (u[i1, j1] - u[i1, j0])) / self.cell[0]
         gy = ((1 - fu) * (u[i1, j0] - u[i0, j0]) + fu * (u[i1, j1] - u[i0, j1])) / self.cell[1]
         return loss, np.stack([gx, gy], axis=1)
+
+
+def transmittances(ink: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """How much of the blur passes between neighbouring cells of mean ink ``ink`` (H, W, in [0, 1]) and regularity
+    ``mask`` (H, W): ``exp(-(log ink ratio / INK_STEP)^2 - (regularity step / REGULARITY_STEP)^2)``, the ink floored by
+    :data:`INK_FLOOR`. Returns (across (H, W - 1), between columns j and j + 1; down, transposed (W, H - 1), between
+    rows), or None where every one is 1 (no edge: the plain blur)."""
+    log_ink, steps = np.log(ink + INK_FLOOR) / INK_STEP, mask / REGULARITY_STEP
+    across, down = (np.exp(-(np.diff(log_ink, axis=a) ** 2 + np.diff(steps, axis=a) ** 2)) for a in (1, 0))
+    if across.min(initial=1.0) == 1.0 and down.min(initial=1.0) == 1.0:
+        return None
+    return across, np.ascontiguousarray(down.T)
+
+
+def edge_blur(values: np.ndarray, taps: tuple[np.ndarray, np.ndarray], tau: tuple[np.ndarray, np.ndarray],
+              fast: bool = True, adjoint: bool = False) -> np.ndarray:
+    """(H, W) ``values`` blurred along the rows by ``taps[1]`` through ``tau[0]`` (H, W - 1), then along the columns by
+    ``taps[0]`` through ``tau[1]`` (W, H - 1) (:func:`transmittances`); ``adjoint``: the columns first, its transpose
+    (each pass is symmetric). ``fast``: numba's :func:`synthesis.fields_fast.edge_pass`, else
+    :func:`edge_pass_reference`."""
+    def run(v: np.ndarray, weights: np.ndarray, through: np.ndarray) -> np.ndarray:
+        if not fast:
+            return edge_pass_reference(v, weights, through)
+        out = np.empty(v.shape)
+        edge_pass(np.ascontiguousarray(v), weights, through, out)
+        return out
+
+    def rows(v: np.ndarray) -> np.ndarray:
+        return run(v, taps[1], tau[0])
+
+    def columns(v: np.ndarray) -> np.ndarray:
+        return run(v.T, taps[0], tau[1]).T
+
+    return rows(columns(values)) if adjoint else columns(rows(values))
+
+
+def edge_pass_reference(values: np.ndarray, taps: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """values (H, W) blurred along the rows by ``taps`` (2 K + 1), each tap times the transmittances ``tau`` (H, W - 1)
+    crossed, zero beyond the ends; plain numpy (the reference of :func:`synthesis.fields_fast.edge_pass`)."""
+    width, reach = values.shape[1], len(taps) // 2
+    out = taps[reach] * values
+    right = left = np.ones(values.shape)  # products of the transmittances from each cell k to the right / left
+    for k in range(1, min(reach, width - 1) + 1):
+        right = right[:, : width - k] * tau[:, k - 1 :]
+        left = left[:, 1:] * tau[:, : width - k]
+        out[:, : width - k] += taps[reach + k] * right * values[:, k:]
+        out[:, k:] += taps[reach - k] * left * values[:, : width - k]
+    return out
 
 
 def _tent_filter(values: np.ndarray) -> np.ndarray:

@@ -56,8 +56,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.cells import CellGrid
-from synthesis.edgepcf_fast import (point_lists, point_terms, row_guides, sloped_window_sums, window_bounds, window_sums,
-                                    window_weights)
+from synthesis.edgepcf_fast import (WINDOW_PARTS, expected_window_sums, point_lists, point_terms, row_guides,
+                                    sloped_window_sums, window_bounds, window_sums, window_totals, window_weights)
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, Denominators, MapFields, sample_grid
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
@@ -165,6 +165,11 @@ class Neighbourhoods:
         structure: (n,) in [0, 1], how far the target PCF at each point is from Poisson's (0: white noise).
         window_expected: (W, m) float64 every window's sum of its points' expected counts ``sum_c a_wc g D_c`` at the
             anchors, per radius (all families, numbered as the point lists; :func:`synthesis.edgepcf_fast.window_sums`).
+        deviation: (W, m) float32 every window's deviation, numbered as the point lists (the families' ``deviation``
+            are views of it).
+        anchor_counts: the buffers (per-thread window sums of the tent counts, each pair's bin and pull) in which
+            :func:`synthesis.edgepcf_fast.window_sums` left its counts at the anchors, while they are intact: the
+            objective's first evaluation there reads them instead of counting again (None: count).
     """
 
     offsets: np.ndarray
@@ -186,6 +191,8 @@ class Neighbourhoods:
     regularity: np.ndarray
     structure: np.ndarray
     window_expected: np.ndarray | None = None
+    deviation: np.ndarray | None = None
+    anchor_counts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def expected(self) -> np.ndarray:
         """(n, m) float64 target tent counts ``g D`` around each point at its anchor (plain numpy)."""
@@ -198,7 +205,7 @@ class Neighbourhoods:
 
 
 def _owners(offsets: np.ndarray) -> np.ndarray:
-    return np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)).astype(np.int32)
+    return np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets))
 
 
 def window_taper(u: np.ndarray) -> np.ndarray:
@@ -223,7 +230,8 @@ def _windows(scale: WindowScale, fields: MapFields, grid: CellGrid, latent: np.n
              workspace: Workspace, name: str) -> Windows:
     """Members and weights of windows at ``centres`` (W, 2); their deviation is set by :func:`find_neighbourhoods`."""
     reach = scale.radius * sample_grid(fields.spacing, centres, fields.side_px)[:, 0].astype(np.float64)
-    offsets, members, distance = grid.query(centres, reach, workspace=workspace, name=name)  # distances: one shared buffer
+    # the distances, needed only here, in the buffer the refresh's window sums take later (1M points: 39 MB less)
+    offsets, members, distance = grid.query(centres, reach, workspace=workspace, name=name, distance_name=WINDOW_PARTS)
     centre_latent = sample_grid(fields.latent, centres, fields.side_px) if fields.guide else None
     weights = window_weights(distance, offsets, reach, latent, members, centre_latent, GUIDE_BANDWIDTH,
                              workspace.empty(f"{name}.weights", len(members), np.float32))
@@ -245,7 +253,8 @@ def _deviation(scale: WindowScale, squares: np.ndarray, radii: np.ndarray) -> np
 
 
 def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[np.ndarray] | None = None,
-                        denominators: DenominatorTracker | None = None, workspace: Workspace | None = None) -> Neighbourhoods:
+                        denominators: DenominatorTracker | None = None, workspace: Workspace | None = None,
+                        slopes: bool = True) -> Neighbourhoods:
     """Every pair within the estimator's reach (cutoff x spacing of the centre), windows, and the fields at the points.
 
     ``window_centres``: one (W, 2) array per :data:`WINDOW_SCALES` entry, where the
@@ -255,6 +264,9 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     ``workspace``: where the large arrays live (a synthesiser reuses one across refreshes:
     the previous neighbourhoods' arrays are overwritten). Neighbour lists come from one :class:`~synthesis.cells.CellGrid` with cells of
     the median pair reach; they run fastest on spatially sorted points.
+    ``slopes=False``: the expected counts' slopes and the variance force are left 0 (no slope levels, no window sums of
+    counts): only for the objective at xy itself, where every slope term meets a move of 0 (the same loss;
+    :func:`synthesis.synthesize.final_loss`).
     """
     xy = np.asarray(xy, np.float64)
     n = len(xy)
@@ -277,22 +289,40 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     members = point_lists(windows, n, workspace)
     bounds = window_bounds(windows)
     squares, regular, structured = point_terms(fields, xy, denominator, members, bounds[-1],
-                                               int(np.sum(fields.radii <= REGULAR_RANGE)), POISSON_TOLERANCE, STRUCTURE_RANGE)
+                                               int(np.sum(fields.radii <= REGULAR_RANGE)), POISSON_TOLERANCE, STRUCTURE_RANGE,
+                                               workspace=workspace)
+    deviation = np.empty(squares.shape, np.float32)
     for family, lo, hi in zip(windows, bounds[:-1], bounds[1:]):
-        family.deviation = _deviation(family.scale, squares[lo:hi], fields.radii)
+        family.deviation = deviation[lo:hi]
+        family.deviation[:] = _deviation(family.scale, squares[lo:hi], fields.radii)
     sloped = denominator.sloped
-    expected_slope = sample_grid(fields.target, xy[sloped], fields.side_px)[..., None] * denominator.slopes
-    dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
-    cumulative = np.cumsum(expected_slope, axis=1)
-    variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * cumulative, fields.radii)
+    if slopes:
+        # the expected counts' slopes g grad D cumulated over the radii (K, m, 2), in place (as the levels below: 1M
+        # points, 2 threads, 52 MB less at a refresh)
+        cumulative = sample_grid(fields.target, xy[sloped], fields.side_px).astype(np.float64)[..., None] * denominator.slopes
+        np.cumsum(cumulative, axis=1, out=cumulative)
+        dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
+        variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * cumulative, fields.radii)
+    else:
+        cumulative, variance_force = np.zeros((len(sloped), len(fields.radii), 2)), np.zeros((len(sloped), 2))
     hood = Neighbourhoods(offsets, neighbours, guide, spacing, xy.copy(), fields.target, fields.side_px, denominator, sloped,
-                          expected_slope, variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular,
-                          structured)
-    observed, hood.window_expected = window_sums(hood, xy, workspace)
+                          cumulative, variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular,
+                          structured, deviation=deviation)  # expected_slope set below (window_sums does not read it)
+    if not slopes:
+        hood.window_expected = expected_window_sums(hood, workspace)
+        return hood
+    observed, hood.window_expected = window_sums(hood, xy, workspace, level_only=True)
     if len(sloped):
-        levelled = cumulative * slope_levels(hood, observed, hood.window_expected)[..., None]
-        hood.expected_slope = np.diff(levelled, axis=1, prepend=0.0)
+        cumulative *= slope_levels(hood, observed, hood.window_expected)[..., None]  # levelled
+        hood.expected_slope = _by_axis(cumulative.shape)  # the fast objective takes each axis's (K, m) as they are
+        np.subtract(cumulative[:, 1:], cumulative[:, :-1], out=hood.expected_slope[:, 1:])  # np.diff, prepend=0
+        hood.expected_slope[:, 0] = cumulative[:, 0]
     return hood
+
+
+def _by_axis(shape: tuple[int, int, int]) -> np.ndarray:
+    """An empty (K, m, 2) float64 array stored as (2, K, m): each axis's (K, m) is contiguous."""
+    return np.empty((shape[2], shape[0], shape[1])).transpose(1, 2, 0)
 
 
 def slope_levels(hood: Neighbourhoods, observed: np.ndarray, expected: np.ndarray) -> np.ndarray:
@@ -313,7 +343,7 @@ def slope_levels(hood: Neighbourhoods, observed: np.ndarray, expected: np.ndarra
     for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:]):
         if not family.scale.level:
             continue
-        prior = LEVEL_PRIOR * np.bincount(family.owners, family.weights, minlength=hi - lo)[:, None]
+        prior = LEVEL_PRIOR * window_totals(family.offsets, family.weights)[:, None]
         level = (np.cumsum(observed[lo:hi], axis=1) + prior) / (np.cumsum(expected[lo:hi], axis=1) + prior)
         levels += sloped_window_sums(hood.sloped, hood.member_offsets, hood.member_window, hood.member_weight, lo, level)
         total += sloped_window_sums(hood.sloped, hood.member_offsets, hood.member_window, hood.member_weight, lo,

@@ -44,6 +44,8 @@ if TYPE_CHECKING:
 _JIT = {"parallel": True, "cache": True, "fastmath": False}
 # the two per-iteration kernels may reorder and fuse float32 arithmetic (SIMD): results agree with the reference to ~1e-6
 _HOT = {"parallel": True, "cache": True, "fastmath": {"contract", "reassoc", "arcp"}}
+# the workspace buffer of the window sums (see :func:`_window_buffers`; float64), also the window queries' distances
+WINDOW_PARTS = "window_parts"
 
 
 @numba.njit(**_JIT)
@@ -95,6 +97,8 @@ def _kernels_for(m: int) -> tuple:
                 most = max(most, offsets[c + 1] - offsets[c])
             pair_distance = np.empty(most)  # a centre's pair distances: its square roots and divisions in a loop of
             # their own, apart from the scattered tent counts (the same values; 100k points: 6 % less time a call)
+            offset_x, offset_y = np.empty(most), np.empty(most)  # the offsets gathered first: the square roots and
+            # divisions then run on contiguous arrays (SIMD; the same values, 100k points: 5 % less time a call)
             for c in range(t * n // threads, (t + 1) * n // threads):
                 k = slot[c]
                 if k >= 0:  # the expected counts g D at the anchor (in the refresh's fixed sums) moved along their slope
@@ -108,13 +112,15 @@ def _kernels_for(m: int) -> tuple:
                 scale = inv_width / spacing[c]
                 xc, yc = xy[c, 0], xy[c, 1]
                 first = offsets[c]
-                for p in range(first, offsets[c + 1]):  # for the gradient: the tent's slope along the offset
-                    b = neighbours[p]
-                    dx, dy = xy[b, 0] - xc, xy[b, 1] - yc
-                    distance = math.sqrt(dx * dx + dy * dy)
-                    pair_distance[p - first] = distance
-                    if distance > 0.0:
-                        pair_pull[p] = guide[p] * scale / distance
+                count = offsets[c + 1] - first
+                for q in range(count):
+                    b = neighbours[first + q]
+                    offset_x[q], offset_y[q] = xy[b, 0] - xc, xy[b, 1] - yc
+                for q in range(count):
+                    pair_distance[q] = math.sqrt(offset_x[q] * offset_x[q] + offset_y[q] * offset_y[q])
+                for q in range(count):  # for the gradient: the tent's slope along the offset
+                    if pair_distance[q] > 0.0:
+                        pair_pull[first + q] = guide[first + q] * scale / pair_distance[q]
                 for p in range(first, offsets[c + 1]):  # plus the tent counts of the pairs
                     distance = pair_distance[p - first]
                     d = distance * scale
@@ -214,7 +220,7 @@ def _kernels_for(m: int) -> tuple:
 
 
 @numba.njit(**_JIT)
-def _window_slopes(sums, fixed, deviation, dead, scale, slope, loss, active):  # pragma: no cover - jitted
+def _window_slopes(sums, expected, deviation, dead, scale, slope, loss, active):  # pragma: no cover - jitted
     threads, windows, m = sums.shape
     for w in numba.prange(windows):
         penalty = 0.0
@@ -222,7 +228,7 @@ def _window_slopes(sums, fixed, deviation, dead, scale, slope, loss, active):  #
         outside = False  # beyond its dead zone at some radius; a window inside it at every radius has no slope, and
         # the gradient skips it
         for j in range(m):
-            total += fixed[w, j]
+            total -= expected[w, j]
             for t in range(threads):
                 total += sums[t, w, j]
             x = total / deviation[w, j]
@@ -262,24 +268,54 @@ def row_guides(latent: np.ndarray, row_latent: np.ndarray, offsets: np.ndarray, 
 
 def point_terms(fields: MapFields, xy: np.ndarray, denominators: Denominators, members: tuple[np.ndarray, np.ndarray, np.ndarray],
                 windows: int, short: int, tolerance: float, structure_range: float,
-                threads: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                threads: int | None = None, workspace: Workspace | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-point terms at xy (n, 2), the target and dispersion sampled on the fly (bilinear, float32 as
     :func:`synthesis.fields.sample_grid`):
 
     the window sums (``windows``, m) of ``a_wc^2 V_c``, V_c the variance of point c's cumulative counts,
     ``dispersion (cumsum(g D) + 1)`` (the windows' Poisson-model variance; ``members``: the point lists of
     :func:`point_lists`), and the target's regularity (n,) (1 - mean of its first ``short`` radii) and structure (n,)
-    (see :func:`synthesis.edgepcf.structure`). No (n, m) array is stored.
+    (see :func:`synthesis.edgepcf.structure`). No (n, m) array is stored. The sums live in ``workspace``'s
+    :data:`WINDOW_PARTS` buffer (overwritten by the next use).
     """
     n, m = len(xy), len(fields.radii)
     threads = _threads(threads)
-    squares = np.empty((threads, windows, m))
+    squares = _window_buffers(scratch(workspace), threads, windows, m)[0]
     regularity, structure = np.empty(n), np.empty(n)
     kernel = _kernels_for(m)[2]
     kernel(fields.target, fields.dispersion, xy[:, 0] * fields.side_px - 0.5, xy[:, 1] * fields.side_px - 0.5,
            denominators.exact, denominators.slot, denominators.values, short, tolerance, structure_range, *members, squares,
            regularity, structure)
-    return squares.sum(axis=0), regularity, structure
+    return _thread_total(squares), regularity, structure
+
+
+def _window_buffers(workspace: Workspace, threads: int, windows: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-thread window sums in one workspace buffer (:data:`WINDOW_PARTS`): a refresh's float64 parts (threads, W, m)
+    (the point terms' squares, then the expected counts' sums, which stay in the first part as ``window_expected``)
+    and the iterations' float32 sums (threads, W, m) from the second part on: over float64 parts that nothing reads
+    once the refresh summed them into the first. The refresh's window queries put their distances there first.
+
+    One buffer instead of three (the distances', the parts', the sums'; 1M points, 2 threads: 108 MB instead of 201 MB).
+    """
+    size = windows * m
+    flat = workspace.empty(WINDOW_PARTS, max(threads * size, size + (threads * size + 1) // 2))
+    return flat[:threads * size].reshape(threads, windows, m), flat[size:].view(np.float32)[:threads * size].reshape(
+        threads, windows, m)
+
+
+def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether a and b are the same elements of the same memory (shape, dtype, strides and address)."""
+    return (a.shape, a.dtype, a.strides, a.__array_interface__["data"][0]) == (
+        b.shape, b.dtype, b.strides, b.__array_interface__["data"][0])
+
+
+def _thread_total(parts: np.ndarray) -> np.ndarray:
+    """Per-thread parts (threads, ...) summed into ``parts[0]``, in place (the additions of ``parts.sum(axis=0)``, in
+    its order); returns that view."""
+    total = parts[0]
+    for part in parts[1:]:
+        total += part
+    return total
 
 
 def _threads(threads: int | None) -> int:
@@ -301,6 +337,23 @@ def _scatter_members(offsets, members, weights, first_window, fill, point_window
             point_window[e] = first_window + w
             point_weight[e] = weights[q]
             fill[members[q]] += 1
+
+
+@numba.njit(cache=True)
+def _window_totals(offsets, weights, out):  # pragma: no cover - jitted
+    for w in range(len(offsets) - 1):
+        total = 0.0
+        for q in range(offsets[w], offsets[w + 1]):
+            total += weights[q]
+        out[w] = total
+
+
+def window_totals(offsets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(W,) float64 each window's sum of its weights (E,) (CSR offsets (W + 1,)): ``np.bincount(owners, weights)``, the
+    same additions in the same order, without the (E,) owners (1M points: 18 MB at a refresh)."""
+    out = np.empty(len(offsets) - 1)
+    _window_totals(offsets, weights, out)
+    return out
 
 
 def window_bounds(families: list) -> np.ndarray:
@@ -384,33 +437,60 @@ def sloped_window_sums(sloped: np.ndarray, point_offsets: np.ndarray, point_wind
 
 
 def window_sums(hood: Neighbourhoods, xy: np.ndarray, workspace: Workspace | None = None,
-                threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                threads: int | None = None, level_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Every window's sums (W, m) float64, per radius (not cumulated), over all families (numbered as in
     :func:`point_lists`): of its points' tent counts ``sum_c a_wc S_c`` at xy (n, 2) (the anchors, where nothing has
     moved along its slope), and of their expected counts ``sum_c a_wc g D_c`` at the anchors.
 
     ``hood`` needs its pair lists, guides, spacings, anchors, target, denominators and point lists (its slopes are not
-    read). The same passes as :class:`FastObjective`'s (its buffers in ``workspace``).
+    read). The same passes as :class:`FastObjective`'s (its buffers in ``workspace``; the expected sums are a view of
+    its :data:`WINDOW_PARTS` buffer). ``level_only``: the tent counts' sums of the level windows only
+    (:attr:`synthesis.edgepcf.WindowScale.level`, all that :func:`synthesis.edgepcf.slope_levels` reads), the other rows
+    0 (never written: 1M points, 54 MB less at a refresh). Sets ``hood.anchor_counts`` where xy are the anchors and the
+    counts outlive the expected sums (one thread): the objective's first evaluation reads them, so nothing may write
+    these buffers in between (:func:`synthesis.edgepcf.find_neighbourhoods` does not;
+    ``tests/test_synthesis_fast.py::test_first_objective_call_at_the_anchors_reads_the_refresh_counts``).
     """
     workspace = scratch(workspace)
     threads = _threads(threads)
     n, m = len(xy), len(hood.radii)
     windows = int(window_bounds(hood.windows)[-1])
-    parts = workspace.empty("objective.sums", (threads, windows, m), np.float32)
+    parts = _window_buffers(workspace, threads, windows, m)[1]  # the expected sums go over the counts' parts
     pairs = len(hood.neighbours)
     pair_bin = workspace.empty("objective.pair_bin", pairs, np.int16 if m < 2 ** 15 else np.int32)
     no_slope = np.zeros((1, m))
+    pair_pull = workspace.empty("objective.pair_pull", pairs, np.float32)
     window_sums_of_counts = _kernels_for(m)[0]
     window_sums_of_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing,
                           1.0 / float(hood.radii[1] - hood.radii[0]), xy, np.full(n, -1, np.int32), no_slope, no_slope,
-                          hood.member_offsets, hood.member_window, hood.member_weight, parts, pair_bin,
-                          workspace.empty("objective.pair_pull", pairs, np.float32))
-    observed = parts.sum(axis=0, dtype=np.float64)
-    expected = workspace.empty("objective.fixed", (threads, windows, m))
+                          hood.member_offsets, hood.member_window, hood.member_weight, parts, pair_bin, pair_pull)
+    if level_only:
+        observed = np.zeros((windows, m))
+        bounds = window_bounds(hood.windows)
+        for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:]):
+            if family.scale.level:
+                np.sum(parts[:, lo:hi], axis=0, dtype=np.float64, out=observed[lo:hi])
+    else:
+        observed = parts.sum(axis=0, dtype=np.float64)
+    # the counts at the anchors stay for the objective's first evaluation there, unless the expected sums' per-thread
+    # parts go over them (several threads)
+    kept = np.array_equal(xy, hood.anchor) and not np.shares_memory(parts, _window_buffers(workspace, threads, windows, m)[0])
+    hood.anchor_counts = (parts, pair_bin, pair_pull) if kept else None
+    return observed, expected_window_sums(hood, workspace, threads)
+
+
+def expected_window_sums(hood: Neighbourhoods, workspace: Workspace | None = None,
+                         threads: int | None = None) -> np.ndarray:
+    """(W, m) float64 every window's sum of its points' expected counts ``sum_c a_wc g D_c`` at the anchors, per radius
+    (the second half of :func:`window_sums`, alone: a view of ``workspace``'s :data:`WINDOW_PARTS` buffer, over the
+    counts' per-thread parts when there are several threads)."""
+    workspace = scratch(workspace)
+    threads = _threads(threads)
+    expected = _window_buffers(workspace, threads, int(window_bounds(hood.windows)[-1]), len(hood.radii))[0]
     denominators = hood.denominators
     _expected_window_sums(hood.target, hood.side_px, hood.anchor, denominators.exact, denominators.slot,
                           denominators.values, hood.member_offsets, hood.member_window, hood.member_weight, expected)
-    return observed, -expected.sum(axis=0)
+    return np.negative(_thread_total(expected), out=expected[0])
 
 
 class FastObjective:
@@ -430,7 +510,7 @@ class FastObjective:
         self.inv_width = 1.0 / float(hood.radii[1] - hood.radii[0])
         bounds = window_bounds(hood.windows)
         windows = bounds[-1]
-        self.deviation = np.concatenate([family.deviation for family in hood.windows])
+        self.deviation = hood.deviation
         self.dead = np.concatenate([np.full(hi - lo, family.scale.dead_zone) for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:])])
         self.scale = np.concatenate([np.full(hi - lo, family.scale.weight / ((hi - lo) * m))
                                      for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:])])
@@ -441,9 +521,9 @@ class FastObjective:
         self.cumulative_x = np.cumsum(self.slope_x, axis=1, dtype=np.float64).astype(self.slope_x.dtype)
         self.cumulative_y = np.cumsum(self.slope_y, axis=1, dtype=np.float64).astype(self.slope_y.dtype)
         # the expected counts at the anchors do not move between refreshes: their window sums were taken once, by the
-        # refresh (:func:`window_sums`)
-        self.fixed = -hood.window_expected
-        self.sums = workspace.empty("objective.sums", (threads, windows, m), np.float32)
+        # refresh (:func:`window_sums`; subtracted by _window_slopes)
+        self.expected = hood.window_expected
+        self.sums = _window_buffers(workspace, threads, windows, m)[1]  # past window_expected
         # each pair's bin (-1: out of reach or coincident) and tent slope / distance, written by every evaluation for
         # its gradient (6 bytes a pair: storing the offsets too, 10 bytes, was no faster)
         pairs = len(hood.neighbours)
@@ -456,12 +536,16 @@ class FastObjective:
         self.window_sums_of_counts, self.gradient, _ = _kernels_for(m)
 
     def __call__(self, xy: np.ndarray, gradient: bool = True) -> tuple[float, np.ndarray | None]:
-        """Objective and gradient (n, 2) (a reused buffer when single-threaded: copy it to keep it) at xy (n, 2) float64."""
+        """Objective and gradient (n, 2) (a reused buffer: copy it to keep it) at xy (n, 2) float64."""
         hood = self.hood
-        self.window_sums_of_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width,
-                                   hood.anchor, self.slot, self.slope_x, self.slope_y, hood.member_offsets,
-                                   hood.member_window, hood.member_weight, self.sums, self.pair_bin, self.pair_pull)
-        _window_slopes(self.sums, self.fixed, self.deviation, self.dead, self.scale, self.slopes, self.losses,
+        counted = hood.anchor_counts  # the refresh's counts at the anchors, still in these buffers (see window_sums)
+        hood.anchor_counts = None  # this call overwrites them, or consumes them
+        if not (counted is not None and all(map(_same_array, counted, (self.sums, self.pair_bin, self.pair_pull)))
+                and np.array_equal(xy, hood.anchor)):  # the same tent counts, bins and pulls (slope terms: 0 there)
+            self.window_sums_of_counts(xy, hood.offsets, hood.neighbours, hood.guide, hood.spacing, self.inv_width,
+                                       hood.anchor, self.slot, self.slope_x, self.slope_y, hood.member_offsets,
+                                       hood.member_window, hood.member_weight, self.sums, self.pair_bin, self.pair_pull)
+        _window_slopes(self.sums, self.expected, self.deviation, self.dead, self.scale, self.slopes, self.losses,
                        self.active)
         loss = float(self.losses.sum())
         if len(hood.sloped):
@@ -471,4 +555,4 @@ class FastObjective:
         self.gradient(xy, hood.offsets, hood.neighbours, hood.member_offsets, hood.member_window, hood.member_weight,
                       self.slopes, self.active, self.slot, self.cumulative_x, self.cumulative_y, hood.variance_force,
                       self.pair_bin, self.pair_pull, self.parts)
-        return loss, self.parts[0] if len(self.parts) == 1 else self.parts.sum(axis=0)
+        return loss, _thread_total(self.parts)  # the runs' parts summed into the first (each call zeroes them)

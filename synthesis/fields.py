@@ -438,7 +438,7 @@ class Denominators:
         slot: (n,) int32, -1 for a point in a uniform neighbourhood, else its row in ``values`` and ``slopes``
             (rows in increasing point order).
         values: (K, m) float64 at the points' current positions.
-        slopes: (K, m, 2) float64 gradient with respect to the point's position.
+        slopes: (K, m, 2) float32 gradient with respect to the point's position (the tracker's own array).
     """
 
     exact: np.ndarray
@@ -494,7 +494,6 @@ class DenominatorTracker:
         new_values[slot[computed]], new_slopes[slot[computed]] = values, slopes
         self.anchor[moved] = xy[moved]
         self.slot, self.values, self.slopes = slot, new_values, new_slopes
-        slopes64 = new_slopes.astype(np.float64)
-        current = new_values + np.einsum("kjd,kd->kj", slopes64, xy[stored] - self.anchor[stored])
+        current = new_values + np.einsum("kjd,kd->kj", new_slopes.astype(np.float64), xy[stored] - self.anchor[stored])
         np.maximum(current, 0.0, out=current)  # an expected count: the linear carry overshot below 0 (min -0.68 on a 28-point map)
-        return Denominators(self.fields.exact_denominator, slot, current, slopes64)
+        return Denominators(self.fields.exact_denominator, slot, current, new_slopes)

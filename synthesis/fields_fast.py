@@ -210,18 +210,44 @@ def _separable_blur(values, down, across, threads, out):  # pragma: no cover - j
                 out[i, j] = total
 
 
-def gaussian_blur(values: np.ndarray, sigma: tuple[float, float], truncate: float, out: np.ndarray | None = None) -> np.ndarray:
+def gaussian_blur(values: np.ndarray, sigma: tuple[float, float], truncate: float, out: np.ndarray | None = None,
+                  taps: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(H, W) float64 Gaussian blur of values (H, W) with standard deviations ``sigma`` (rows, columns) in pixels, zero
     beyond the edges, each axis's kernel cut at ``int(truncate sigma + 0.5)`` pixels and normalised to sum 1: what
     ``scipy.ndimage.gaussian_filter(values, sigma, mode="constant", truncate=truncate)`` gives, to rounding (tests
     compare them), without importing scipy.ndimage (0.13 s of a synthesis's start-up). ``out``: an (H, W) float64 array
-    to fill (not ``values``)."""
-    def weights(sd: float) -> np.ndarray:
-        x = np.arange(-int(truncate * sd + 0.5), int(truncate * sd + 0.5) + 1)
-        phi = np.exp(-0.5 / (sd * sd) * x**2)
-        return phi / phi.sum()
-
+    to fill (not ``values``); ``taps``: :func:`gaussian_taps` of ``sigma`` and ``truncate`` per axis, computed once by a
+    caller that blurs often (the tone term: twice an iteration)."""
     out = np.empty(np.shape(values)) if out is None else out
-    _separable_blur(np.ascontiguousarray(values, np.float64), weights(sigma[0]), weights(sigma[1]), numba.get_num_threads(),
-                    out)
+    down, across = taps or (gaussian_taps(sigma[0], truncate), gaussian_taps(sigma[1], truncate))
+    _separable_blur(np.ascontiguousarray(values, np.float64), down, across, numba.get_num_threads(), out)
     return out
+
+
+def gaussian_taps(sd: float, truncate: float) -> np.ndarray:
+    """(2 K + 1,) a Gaussian of standard deviation ``sd`` (pixels) at offsets -K..K, K = ``int(truncate sd + 0.5)``,
+    normalised to sum 1 (``scipy.ndimage.gaussian_filter``'s kernel)."""
+    x = np.arange(-int(truncate * sd + 0.5), int(truncate * sd + 0.5) + 1)
+    phi = np.exp(-0.5 / (sd * sd) * x**2)
+    return phi / phi.sum()
+
+
+@numba.njit(parallel=True, cache=True)
+def edge_pass(values, taps, tau, out):  # pragma: no cover - jitted
+    """out (H, W) = values (H, W) blurred along its rows by ``taps`` (2 K + 1, symmetric), each tap's weight times the
+    product of the transmittances ``tau`` (H, W - 1; between columns j and j + 1) crossed on the way, zero beyond the
+    ends: a symmetric operator that stops at edges. Reference: :func:`synthesis.density_term.edge_pass_reference`."""
+    height, width = values.shape
+    reach = len(taps) // 2
+    for i in numba.prange(height):
+        right = np.ones(width)  # products of the transmittances from each cell to the one k to its right ...
+        left = np.ones(width)  # ... and k to its left, over k (inner loops along the row: they vectorise)
+        for j in range(width):
+            out[i, j] = taps[reach] * values[i, j]
+        for k in range(1, min(reach, width - 1) + 1):
+            for j in range(width - k):
+                right[j] *= tau[i, j + k - 1]
+                out[i, j] += taps[reach + k] * right[j] * values[i, j + k]
+            for j in range(k, width):
+                left[j] *= tau[i, j - k]
+                out[i, j] += taps[reach - k] * left[j] * values[i, j - k]

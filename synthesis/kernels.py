@@ -14,7 +14,7 @@ import sys
 import types
 
 SYNTHESIS_KERNELS = ("synthesis.cells", "synthesis.edgepcf_fast", "synthesis.fields_fast", "synthesis.neighbour_term",
-                     "synthesis.step_fast")
+                     "synthesis.step_fast", "synthesis.stratified")
 _announced: set[str] = set()
 
 

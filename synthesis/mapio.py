@@ -22,15 +22,18 @@ import os
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import tifffile
-from PIL import Image, ImageOps, UnidentifiedImageError
 
 from synthesis.atomic import atomic_path, atomic_paths
 from synthesis.errors import MapFormatError, PatternshopError, PatternshopWarning, require_file
 from synthesis.labmap import LabMap
 from synthesis.version import version_string
+
+if TYPE_CHECKING:  # Pillow is imported where an image is read or written: a TIFF map's synthesis never needs it
+    from PIL import Image
 
 TIFF_SUFFIXES = (".tif", ".tiff")
 SRGB_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -105,6 +108,8 @@ def map_size(path: PathLike) -> tuple[int, int]:
         except (tifffile.TiffFileError, ValueError, OSError, KeyError, IndexError, RuntimeError) as exc:
             raise MapFormatError(f"{path}: not a readable TIFF ({_reason(exc)})") from exc
     if suffix in SRGB_SUFFIXES:
+        from PIL import Image, UnidentifiedImageError
+
         try:
             with Image.open(path) as image:
                 return image.size
@@ -222,6 +227,8 @@ def _warn_srgb(path: Path) -> None:
 
 
 def _open_image(path: Path) -> Image.Image:
+    from PIL import Image, UnidentifiedImageError
+
     try:
         image = Image.open(path)
         image.load()
@@ -234,6 +241,8 @@ def _open_image(path: Path) -> Image.Image:
 
 
 def _read_srgb_image(path: Path) -> LabMap:
+    from PIL import ImageOps
+
     image = ImageOps.exif_transpose(_open_image(path))
     _warn_srgb(path)
     if image.has_transparency_data:
@@ -312,6 +321,8 @@ def write_tiff(lab_map: LabMap, path: PathLike, bits: int = 16) -> None:
 
 def write_channels(lab_map: LabMap, path: PathLike) -> tuple[Path, Path, Path]:
     """Write the map as three 16-bit greyscale PNGs (see module docstring); returns their paths."""
+    from PIL import Image
+
     targets = channel_paths(path)
     fractions = (lab_map.L / 100.0, (lab_map.ab[..., 0] + 128.0) / 255.0, (lab_map.ab[..., 1] + 128.0) / 255.0)
     with atomic_paths(targets) as temporary:
@@ -339,6 +350,8 @@ def write_preview(lab_map: LabMap, path: PathLike, scale: int = 1) -> None:
     """Write an 8-bit sRGB PNG of the map (out-of-gamut colours clipped), ``scale`` x enlarged."""
     if scale < 1:
         raise PatternshopError(f"preview scale must be >= 1, got {scale}")
+    from PIL import Image
+
     image = Image.fromarray(lab_map.to_srgb8())
     if scale > 1:
         image = image.resize((image.width * scale, image.height * scale), Image.Resampling.NEAREST)

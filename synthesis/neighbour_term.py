@@ -65,6 +65,10 @@ class NeighbourTerm:
         self.fields = fields
         self.weight = float(weight)
         self.active = self.weight > 0 and fields.neighbour_bounds is not None
+        self.clear()
+
+    def clear(self) -> None:
+        """Drop the last refresh's arrays (the synthesiser calls it before it builds new pair lists: peak memory)."""
         self.offsets = self.neighbours = self.lower = self.upper = self.spacing = self.nearest = self.pull = None
 
     def refresh(self, offsets: np.ndarray, neighbours: np.ndarray, anchor: np.ndarray, spacing: np.ndarray,
@@ -73,8 +77,7 @@ class NeighbourTerm:
         and the bounds at the refresh positions ``anchor`` (n, 2) with local spacings ``spacing`` (n,) in map units;
         keep the pairs within reach of the bounds (:func:`short_lists`, a slack of :data:`SLACK` x ``freedom`` (n,), the
         points' step factor, spacings)."""
-        # the last refresh's arrays go before the new ones are built (300k points, 2 threads: peak 0.990 -> 0.984 GB)
-        self.offsets = self.neighbours = self.lower = self.upper = self.spacing = self.nearest = self.pull = None
+        self.clear()  # the last refresh's arrays go before the new ones are built
         bounds = sample_grid(self.fields.neighbour_bounds, anchor, self.fields.side_px).astype(np.float64)
         self.spacing = np.asarray(spacing, np.float64)
         self.lower = bounds[:, 0] * self.spacing  # map units

@@ -14,8 +14,11 @@ TEXT_POINTS_BYTES_PER_FILE_BYTE = 12  # read_points of text (1M points, 24 MB: 0
 NPY_POINTS_BYTES_PER_FILE_BYTE = 4
 SYNTHESIS_BASE = 0.3e9  # synthesis (20k / 100k / 1M points on a 256^2 map: 0.29 / 0.40 / 1.43 GB on 1 thread;
 # bench_speed.py with 2 threads: 10k 0.28, 100k 0.41, 300k 0.75, 1M 1.53 GB; synthesis v3 (f5a0055): 100k 0.47,
-# 300k 0.99, 1M 2.19 GB; 2.35 GB in a run that compiled the kernels)
-SYNTHESIS_BYTES_PER_POINT = 2.4e3  # v3's 300k on 2 threads needs 2.26e3 over the base and the 256^2 map, 1M 2.04e3
+# 300k 0.99, 1M 2.19 GB; 2.35 GB in a run that compiled the kernels; after the memory round of issue 27 (refresh buffers
+# shared, no copies of the window sums, final_loss after the run's lists are dropped): 100k 0.37 (1 thread), 300k 0.68,
+# 1M 1.44 GB on 2 threads, warm kernel cache; compiling adds about 0.15 GB)
+SYNTHESIS_BYTES_PER_POINT = 1.3e3  # 300k on 2 threads needs 1.23e3 over the base and the 256^2 map, 1M 1.12e3 (about
+# 1.27e3 with the 0.15 GB that compiling the kernels added to v3)
 SYNTHESIS_BYTES_PER_PIXEL = 180
 RENDER_BYTES_PER_PIXEL = 100  # render_png: supersampled span counts and the grey image, per output pixel
 NETWORK_BYTES_PER_RASTER_PIXEL = 260  # ONNX Runtime, default generator exported fused, 8 symmetries averaged, zoomed readings (a 2176^2 px raster: 1.40 GB; 1 symmetry 1.09 GB)

@@ -73,6 +73,42 @@ def test_lazy_palette_arrays_are_the_stored_ones_and_pickle_whole():
 
 
 @shipped
+def test_lookup_tables_are_mapped_from_a_decompressed_copy_with_the_same_samples(tmp_path):
+    """Before the tables are loaded, synthesis samples the stored float16 tables memory-mapped from copies written
+    beside the asset on first use: the samples of the loaded float32 tables, bit for bit; a broken copy is not read,
+    an earlier asset's copy is removed."""
+    asset = tmp_path / "palette.npz"
+    asset.write_bytes(DEFAULT_PALETTE.read_bytes())
+    earlier = tmp_path / "__pycache__" / "palette.lut.0badc0de.npy"
+    earlier.parent.mkdir()
+    earlier.write_bytes(b"an earlier asset's table")
+    z = np.random.default_rng(5).random((500, 2))
+    loaded = Palette.load(asset)
+    expected = (_bilinear_reference(loaded.lut, z), _bilinear_reference(loaded.dispersion_lut, z))
+    for _ in range(2):  # the first run writes the copies, the second maps them
+        palette = Palette.load(asset)
+        np.testing.assert_array_equal(palette.pcf_at_latent(z), expected[0])
+        np.testing.assert_array_equal(palette.dispersion_at_latent(z), expected[1])
+        assert not {"lut", "dispersion_lut"} & set(vars(palette))  # the float32 tables were not loaded
+    copies = sorted((tmp_path / "__pycache__").glob("palette.*.npy"))
+    assert [copy.name.split(".")[1] for copy in copies] == ["dispersion_lut", "lut"] and earlier not in copies
+    copies[1].write_bytes(b"broken")
+    np.testing.assert_array_equal(Palette.load(asset).pcf_at_latent(z), expected[0])
+
+
+def _bilinear_reference(table: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Bilinear samples (k, m) float32 of a (S, S, m) table with nodes at latent (i, j) / (S - 1), one point at a time."""
+    size = table.shape[0]
+    out = np.empty((len(z), table.shape[2]), np.float32)
+    for k, (u, v) in enumerate(np.clip(z, 0.0, 1.0) * (size - 1)):
+        i, j = min(int(u), size - 2), min(int(v), size - 2)
+        a, b = u - i, v - j
+        out[k] = ((1 - a) * (1 - b) * table[i, j].astype(np.float64) + a * (1 - b) * table[i + 1, j]
+                  + (1 - a) * b * table[i, j + 1] + a * b * table[i + 1, j + 1])
+    return out
+
+
+@shipped
 def test_a_damaged_table_is_a_palette_error_when_it_is_read(tmp_path):
     damaged, short = tmp_path / "damaged.npz", tmp_path / "short.npz"
     with zipfile.ZipFile(DEFAULT_PALETTE) as source, zipfile.ZipFile(damaged, "w") as out, zipfile.ZipFile(short, "w") as cut:

@@ -181,6 +181,89 @@ def test_reused_workspace_and_threads_give_the_same_objective():
     np.testing.assert_allclose(again[1], gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_final_loss_without_slopes_is_the_full_objective_at_the_anchors(threads):
+    """final_loss builds its neighbourhoods without the expected counts' slopes, their levels and the variance force
+    (each meets a move of 0 at the anchors): the same loss bit for bit as the full refresh's objective there."""
+    import numba
+
+    from synthesis.edgepcf import WindowSampler
+    from synthesis.synthesize import final_loss
+
+    fields = MapFields.build(split_map(), 1500, load_palette())
+    xy = np.random.default_rng(5).random((1500, 2)) * fields.domain
+    xy = xy[spatial_order(xy, fields.domain)]
+    centres = WindowSampler(fields).draw(np.random.default_rng(0))
+    with_threads = min(threads, numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(with_threads)
+    try:
+        hood = find_neighbourhoods(fields, xy, centres)
+        assert len(hood.sloped) and np.abs(hood.variance_force).max() > 0  # borders and edges: slope terms to skip
+        full = FastObjective(hood)(xy, gradient=False)[0]
+        assert final_loss(fields, xy) == full
+        assert final_loss(fields, xy, workspace=Workspace()) == full
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
+def test_first_objective_call_at_the_anchors_reads_the_refresh_counts():
+    """On one thread the refresh's window sums leave their tent counts, bins and pulls in the objective's buffers: its
+    first evaluation at the anchors reads them (no counting pass) with the same loss and gradient bit for bit; any
+    later evaluation counts."""
+    import numba
+
+    fields = MapFields.build(split_map(), 1500, load_palette())
+    xy = np.random.default_rng(7).random((1500, 2)) * fields.domain
+    xy = xy[spatial_order(xy, fields.domain)]
+    numba.set_num_threads(1)
+    try:
+        workspace = Workspace()
+        hood = find_neighbourhoods(fields, xy, workspace=workspace)
+        assert hood.anchor_counts is not None and len(hood.sloped)
+        objective = FastObjective(hood, 1, workspace)
+        passes = []
+        count = objective.window_sums_of_counts
+        objective.window_sums_of_counts = lambda *args: passes.append(1) or count(*args)
+        loss, gradient = objective(xy)
+        assert passes == [] and hood.anchor_counts is None
+        fresh = FastObjective(hood, 1, Workspace())(xy)  # counted again, in buffers of its own
+        assert loss == fresh[0]
+        np.testing.assert_array_equal(gradient, fresh[1])
+        objective(xy)
+        assert passes == [1]
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
+def test_window_sums_share_one_buffer_without_overwriting_the_expected_sums():
+    """The iterations' float32 window sums lie in the refresh's float64 parts past the first, which keeps the expected
+    counts' sums (``window_expected``) for the whole refresh; a refresh's level-only tent sums are the full ones on the
+    level windows; the windows' weight totals are numpy's bincount, bit for bit."""
+    from synthesis.edgepcf_fast import _window_buffers, window_bounds, window_sums, window_totals
+
+    for threads in (1, 2, 3):
+        parts, sums = _window_buffers(Workspace(), threads, 7, 5)
+        assert parts.shape == sums.shape == (threads, 7, 5) and (parts.dtype, sums.dtype) == (np.float64, np.float32)
+        assert not np.shares_memory(parts[0], sums)
+    fields = MapFields.build(split_map(), 1500, load_palette())
+    xy = np.random.default_rng(6).random((1500, 2)) * fields.domain
+    xy = xy[spatial_order(xy, fields.domain)]
+    workspace = Workspace()
+    hood = find_neighbourhoods(fields, xy, workspace=workspace)
+    kept = hood.window_expected.copy()
+    objective = FastObjective(hood, 2, workspace)
+    for shift in (0.0, 1e-3):
+        objective(xy + shift)
+    np.testing.assert_array_equal(hood.window_expected, kept)
+    full, _ = window_sums(hood, xy)
+    level, _ = window_sums(hood, xy, level_only=True)
+    bounds = window_bounds(hood.windows)
+    for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:]):
+        np.testing.assert_array_equal(level[lo:hi], full[lo:hi] if family.scale.level else 0.0)
+        np.testing.assert_array_equal(window_totals(family.offsets, family.weights),
+                                      np.bincount(family.owners, family.weights, minlength=hi - lo))
+
+
 def test_synthesis_returns_points_in_the_start_order():
     lab_map = split_map((24, 36))
     start = []
@@ -374,6 +457,29 @@ def test_tone_term_fast_path_equals_the_reference():
     assert fast_loss == pytest.approx(loss, rel=1e-12)
     np.testing.assert_allclose(added - 0.25, gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())  # added into
     assert term(xy) == pytest.approx(loss, rel=1e-12)
+
+
+def test_edge_blur_fast_path_equals_the_reference():
+    """The tone term's edge-stopping blur: numba's pass equals the numpy reference, the 2-D blur's adjoint is its
+    transpose, and with every transmittance 1 it is the plain Gaussian blur."""
+    from synthesis.density_term import edge_blur, edge_pass_reference
+    from synthesis.fields_fast import edge_pass, gaussian_blur, gaussian_taps
+
+    rng = np.random.default_rng(5)
+    for shape, sigma in [((30, 41), (3.0, 2.5)), ((1, 9), (3.0, 3.0)), ((12, 2), (0.6, 5.0))]:
+        values, other = rng.random(shape) - 0.3, rng.random(shape)
+        taps = (gaussian_taps(sigma[0], 3.0), gaussian_taps(sigma[1], 3.0))
+        tau = (rng.random((shape[0], shape[1] - 1)), rng.random((shape[1], shape[0] - 1)))
+        out = np.empty(shape)
+        edge_pass(values, taps[1], tau[0], out)
+        np.testing.assert_allclose(out, edge_pass_reference(values, taps[1], tau[0]), rtol=1e-13, atol=1e-15)
+        for adjoint in (False, True):
+            np.testing.assert_allclose(edge_blur(values, taps, tau, True, adjoint), edge_blur(values, taps, tau, False, adjoint),
+                                       rtol=1e-12, atol=1e-15)
+        assert np.vdot(other, edge_blur(values, taps, tau)) == pytest.approx(
+            np.vdot(edge_blur(other, taps, tau, adjoint=True), values), rel=1e-12)
+        ones = tuple(np.ones_like(t) for t in tau)
+        np.testing.assert_allclose(edge_blur(values, taps, ones), gaussian_blur(values, sigma, 3.0), rtol=0, atol=1e-14)
 
 
 def test_image_filters_equal_scipy_ndimage():
