@@ -13,9 +13,10 @@ is chosen below that bound on the development stipplings (``docs/network.md``).
 
 With ``--tolerances K,K,...`` it also scores ``infer``'s maps of the 12 development stipplings (the four development
 pictures of ``patternshop_nn.ood`` by its three stipplers, seed 1000) at each k (and unsmoothed): mean SSIM and MAE of L
-and the cases better than the oracle KDE in both, the measurement ``InferConfig.smoothing_tolerance`` is set by.
+and the cases better than the oracle KDE in both, the measurement ``InferConfig.smoothing_tolerance`` is set by. Each
+k's row also holds every case's SSIM and MAE beside the oracle KDE's (``per_case``); ``--cases`` prints them as a table.
 
-Run with ``python bench/bench_uncertainty.py [--model FILE] [--symmetries N] [--tolerances 0.15,0.25,0.35,0.5]``
+Run with ``python bench/bench_uncertainty.py [--model FILE] [--symmetries N] [--tolerances 0.15,0.25,0.35,0.5] [--cases]``
 (default: the shipped model; one without ``l_scale`` is skipped with a note, so ``make bench`` passes); results go
 to ``out/bench/uncertainty.json``.
 """
@@ -66,8 +67,10 @@ def ratios(model: OnnxModel, process: str, density: float, symmetries: int) -> d
             "change_over_scale_median_p90": levels}
 
 
-def development_scores(model: OnnxModel, symmetries: int, tolerances: list[float]) -> list[dict]:
-    """Mean SSIM and MAE of L on the 12 development stipplings, and the wins over the oracle KDE, per k (None: unsmoothed)."""
+def development_scores(model: OnnxModel, symmetries: int, tolerances: list[float], print_cases: bool = False) -> list[dict]:
+    """Mean SSIM and MAE of L on the 12 development stipplings, and the wins over the oracle KDE, per k (None: unsmoothed),
+    each row with its cases (``per_case``: picture, stippler, SSIM, MAE, the oracle KDE's, won); ``print_cases``
+    prints them."""
     from data_gen.stipplers import METHODS
     from export.evidence import ScaleChoice
     from export.runtime import infer_map
@@ -78,21 +81,29 @@ def development_scores(model: OnnxModel, symmetries: int, tolerances: list[float
         density, domain = ood.picture_density(picture)
         for method in ood.STIPPLERS:
             xy = METHODS[method](density, ood.STIPPLE_POINTS, domain, np.random.default_rng(SEED))
-            cases.append((PointSet(xy, domain), density, ood.points_per_ink_of(len(xy), density)))
+            cases.append((PointSet(xy, domain), density, ood.points_per_ink_of(len(xy), density), f"{picture} {method}"))
     rows, oracle = [], {}
     for tolerance in [None, *tolerances]:
         config = dataclasses.replace(DEFAULT_INFER, symmetries=symmetries, smoothing_tolerance=tolerance or 0.0)
         scores = []
-        for k, (points, density, scale) in enumerate(cases):
+        for k, (points, density, scale, _) in enumerate(cases):
             inference = infer_map(points, model, scale=ScaleChoice(scale, False), denoise=tolerance is not None, config=config)
             truth_L = 100.0 * (1.0 - ood.resample(density, inference.lab_map.L.shape))
             ssim, mae = ood.l_scores(truth_L, inference.lab_map.L.astype(np.float64))
             oracle.setdefault(k, ood.kde_scores(points.xy, truth_L, scale))
             scores.append((ssim, mae, ssim > oracle[k]["kde_ssim"] and mae < oracle[k]["kde_mae"]))
+        per_case = [{"case": case[3], "ssim": round(ssim, 4), "mae": round(mae, 3), "oracle_ssim": oracle[k]["kde_ssim"],
+                     "oracle_mae": oracle[k]["kde_mae"], "won": bool(won)}
+                    for k, (case, (ssim, mae, won)) in enumerate(zip(cases, scores))]
         ssim, mae, wins = np.array(scores).T
         rows.append({"tolerance": tolerance, "mean_ssim": round(float(ssim.mean()), 4), "mean_mae": round(float(mae.mean()), 3),
                      "better_than_oracle_kde": int(wins.sum()), "cases": len(scores)})
         print(rows[-1], flush=True)
+        if print_cases:
+            for case in per_case:
+                print(f"  {case['case']:<28} SSIM {case['ssim']:.3f} (oracle {case['oracle_ssim']:.3f})  MAE {case['mae']:.2f} "
+                      f"(oracle {case['oracle_mae']:.2f})  {'won' if case['won'] else 'lost'}", flush=True)
+        rows[-1]["per_case"] = per_case
     return rows
 
 
@@ -102,6 +113,7 @@ def main() -> int:
     parser.add_argument("--symmetries", type=int, default=DEFAULT_INFER.symmetries, help="readings averaged (default: infer's)")
     parser.add_argument("--tolerances", type=lambda text: [float(k) for k in text.split(",")], default=[],
                         help="comma-separated k to score on the development stipplings (default: none)")
+    parser.add_argument("--cases", action="store_true", help="print every development stippling's scores at each k")
     args = parser.parse_args()
     model = OnnxModel(args.model, threads=1)
     if not model.has_l_scale:
@@ -113,7 +125,7 @@ def main() -> int:
     save_results("uncertainty", {"model": str(model.path), "symmetries": args.symmetries, "load_average": os.getloadavg(),
                                  "rows": rows, "widest_level_p90_flat": p90,
                                  "flat_tolerance": round(p90 / (1.0 - DEFAULT_INFER.smoothing_softness), 3),
-                                 "development": development_scores(model, args.symmetries, args.tolerances)})
+                                 "development": development_scores(model, args.symmetries, args.tolerances, args.cases)})
     return 0
 
 
