@@ -56,7 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.cells import CellGrid
-from synthesis.edgepcf_fast import (WINDOW_PARTS, expected_window_sums, point_lists, point_terms, row_guides,
+from synthesis.edgepcf_fast import (WINDOW_PARTS, cumulate, expected_window_sums, point_lists, point_terms, row_guides,
                                     sloped_window_sums, window_bounds, window_sums, window_totals, window_weights)
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, Denominators, MapFields, sample_grid
 from synthesis.labmap import LabMap
@@ -300,7 +300,7 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
         # the expected counts' slopes g grad D cumulated over the radii (K, m, 2), in place (as the levels below: 1M
         # points, 2 threads, 52 MB less at a refresh)
         cumulative = sample_grid(fields.target, xy[sloped], fields.side_px).astype(np.float64)[..., None] * denominator.slopes
-        np.cumsum(cumulative, axis=1, out=cumulative)
+        cumulate(cumulative)  # np.cumsum(cumulative, axis=1, out=cumulative), faster
         dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
         variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * cumulative, fields.radii)
     else:
@@ -315,8 +315,10 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     if len(sloped):
         cumulative *= slope_levels(hood, observed, hood.window_expected)[..., None]  # levelled
         hood.expected_slope = _by_axis(cumulative.shape)  # the fast objective takes each axis's (K, m) as they are
-        np.subtract(cumulative[:, 1:], cumulative[:, :-1], out=hood.expected_slope[:, 1:])  # np.diff, prepend=0
-        hood.expected_slope[:, 0] = cumulative[:, 0]
+        for axis in (0, 1):  # np.diff, prepend=0, one axis at a time into its contiguous (K, m) (10k: 1.5 -> 0.3 ms)
+            slope = hood.expected_slope[..., axis]
+            np.subtract(cumulative[:, 1:, axis], cumulative[:, :-1, axis], out=slope[:, 1:])
+            slope[:, 0] = cumulative[:, 0, axis]
     return hood
 
 

@@ -309,6 +309,17 @@ def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
         b.shape, b.dtype, b.strides, b.__array_interface__["data"][0])
 
 
+def cumulate(values: np.ndarray) -> np.ndarray:
+    """``np.cumsum(values, axis=1, out=values)`` on a float64 array (K, m, ...), in place and returned: the same
+    additions in the same order, as m - 1 additions of whole columns (numpy's cumsum along axis 1 runs its inner loop
+    once per row: K = 2,345 and m = 52, 0.43 -> 0.16 ms; (K, m, 2): 0.88 -> 0.31 ms; a refresh takes three)."""
+    for rest in np.ndindex(values.shape[2:]):
+        for j in range(1, values.shape[1]):
+            previous, column = values[(slice(None), j - 1, *rest)], values[(slice(None), j, *rest)]
+            np.add(previous, column, out=column)
+    return values
+
+
 def _thread_total(parts: np.ndarray) -> np.ndarray:
     """Per-thread parts (threads, ...) summed into ``parts[0]``, in place (the additions of ``parts.sum(axis=0)``, in
     its order); returns that view."""
@@ -518,8 +529,8 @@ class FastObjective:
         self.slope_x = np.ascontiguousarray(hood.expected_slope[..., 0])  # (K, m) each
         self.slope_y = np.ascontiguousarray(hood.expected_slope[..., 1])
         # the slopes cumulated over the radii (the gradient pairs them with dL/dS per radius, see _gradient)
-        self.cumulative_x = np.cumsum(self.slope_x, axis=1, dtype=np.float64).astype(self.slope_x.dtype)
-        self.cumulative_y = np.cumsum(self.slope_y, axis=1, dtype=np.float64).astype(self.slope_y.dtype)
+        self.cumulative_x = cumulate(self.slope_x.astype(np.float64)).astype(self.slope_x.dtype)
+        self.cumulative_y = cumulate(self.slope_y.astype(np.float64)).astype(self.slope_y.dtype)
         # the expected counts at the anchors do not move between refreshes: their window sums were taken once, by the
         # refresh (:func:`window_sums`; subtracted by _window_slopes)
         self.expected = hood.window_expected
@@ -533,6 +544,10 @@ class FastObjective:
         self.active = workspace.empty("objective.active", windows, np.bool_)
         self.losses = workspace.empty("objective.losses", windows)
         self.parts = workspace.empty("objective.parts", (threads, n, 2))
+        # the variance force's loss term: the sloped points' anchors gathered once, their moves into a reused buffer
+        # (the same products and sum as ``variance_force * (xy[sloped] - anchor[sloped])``; 10k points: 53 -> 9 us a call)
+        self.sloped_anchor = hood.anchor[hood.sloped]
+        self.moved = np.empty_like(self.sloped_anchor)
         self.window_sums_of_counts, self.gradient, _ = _kernels_for(m)
 
     def __call__(self, xy: np.ndarray, gradient: bool = True) -> tuple[float, np.ndarray | None]:
@@ -549,7 +564,8 @@ class FastObjective:
                        self.active)
         loss = float(self.losses.sum())
         if len(hood.sloped):
-            loss += float(np.sum(hood.variance_force * (xy[hood.sloped] - hood.anchor[hood.sloped])))
+            moved = np.take(xy, hood.sloped, axis=0, out=self.moved)
+            loss += float(np.multiply(hood.variance_force, np.subtract(moved, self.sloped_anchor, out=moved), out=moved).sum())
         if not gradient:
             return loss, None
         self.gradient(xy, hood.offsets, hood.neighbours, hood.member_offsets, hood.member_window, hood.member_weight,

@@ -12,7 +12,7 @@ from synthesis import points as points_module
 from synthesis.cells import CellGrid
 from synthesis.edgepcf import (POISSON_TOLERANCE, REGULAR_RANGE, STRUCTURE_RANGE, find_neighbourhoods, regularity, structure,
                                window_taper)
-from synthesis.edgepcf_fast import FastObjective, point_lists, point_terms, row_guides, window_weights
+from synthesis.edgepcf_fast import FastObjective, cumulate, point_lists, point_terms, row_guides, window_weights
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, guide_similarity, sample_grid, sample_grid_reference
 from synthesis.labmap import LabMap
 from synthesis.mapio import write_tiff
@@ -233,6 +233,32 @@ def test_first_objective_call_at_the_anchors_reads_the_refresh_counts():
         assert passes == [1]
     finally:
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
+@pytest.mark.parametrize("shape", [(300, 52), (300, 52, 2), (0, 52, 2), (5, 1)])
+def test_cumulate_is_numpys_cumsum_bit_for_bit(shape):
+    values = np.random.default_rng(11).standard_normal(shape) * 10.0 ** np.random.default_rng(12).integers(-8, 8, shape)
+    expected = np.cumsum(values, axis=1)
+    result = cumulate(values)
+    assert result is values
+    np.testing.assert_array_equal(result, expected)
+
+
+def test_objective_variance_force_term_is_the_plain_sum_away_from_the_anchors():
+    """The objective's loss away from the anchors: its windows' losses plus ``sum(variance_force * (xy[sloped] -
+    anchor[sloped]))``, bit for bit, though it gathers into a reused buffer (called twice: the buffer is refilled)."""
+    fields = MapFields.build(split_map(), 1500, load_palette())
+    rng = np.random.default_rng(9)
+    xy = rng.random((1500, 2)) * fields.domain
+    xy = xy[spatial_order(xy, fields.domain)]
+    hood = find_neighbourhoods(fields, xy)
+    assert len(hood.sloped) and np.abs(hood.variance_force).max() > 0
+    objective = FastObjective(hood, 1)
+    for scale in (1e-3, 2e-3):
+        moved = np.clip(xy + scale * rng.standard_normal(xy.shape), 0.0, np.asarray(fields.domain) * (1 - 1e-9))
+        loss = objective(moved, gradient=False)[0]
+        plain = float(np.sum(hood.variance_force * (moved[hood.sloped] - hood.anchor[hood.sloped])))
+        assert plain != 0.0 and loss == float(objective.losses.sum()) + plain
 
 
 def test_window_sums_share_one_buffer_without_overwriting_the_expected_sums():
