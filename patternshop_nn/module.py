@@ -13,7 +13,11 @@ Manual optimisation, one discriminator and one generator step per batch:
   pulled by L against a, b (``|y - mu| / b`` is about ``1 / b`` times L's L1);
   the scale head's parameters learn at ``l_scale_lr`` (a new head on a
   fine-tuned network: at the network's rate it stays nearly flat for
-  hundreds of steps);
+  hundreds of steps); ``blurred_l1_weight`` > 0 adds that weight times the L1
+  between L/100 and its target both blurred by a Gaussian of
+  ``blurred_l1_sigma_px`` pixels (:func:`~patternshop_nn.networks.blurred_l1`):
+  density error a few point spacings wide, which the per-pixel terms let the
+  network trade for a soft mean where its input is noisy;
 * Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
   learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
   ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
@@ -35,7 +39,7 @@ import torch
 from torch import nn
 
 from patternshop_nn.baselines import LATENT_MIN_DENSITY
-from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator, init_weights, laplace_nll
+from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator, blurred_l1, init_weights, laplace_nll
 
 LR_POLICIES = ("step", "linear")
 
@@ -47,7 +51,8 @@ class Pix2PixModule(L.LightningModule):
                  disc_channels: int = 16, disc_layers: int = 3, gan_mode: str = "vanilla", adversarial_weight: float = 0.001,
                  lr: float = 1e-4, betas: tuple[float, float] = (0.5, 0.999), lr_halving_epochs: int = 100,
                  sample_images: int = 4, upsample: str = "transposed", lr_policy: str = "step", lr_constant_epochs: int = 0,
-                 lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3) -> None:
+                 lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3,
+                 blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -72,13 +77,19 @@ class Pix2PixModule(L.LightningModule):
         return self.generator(raster), None
 
     def reconstruction_loss(self, fake: torch.Tensor, scale: torch.Tensor | None, target: torch.Tensor) -> tuple[torch.Tensor, dict]:
-        """The generator's non-adversarial loss (L1, or L's Laplace NLL and a, b's L1; module docstring) and its parts to log."""
+        """The generator's non-adversarial loss (L1, or L's Laplace NLL and a, b's L1; plus the weighted blurred L1 of L;
+        module docstring) and its parts to log."""
         l1 = self.l1(fake, target)
         if scale is None:
-            return l1, {"l1": l1}
-        nll = laplace_nll(target[:, :1], fake[:, :1], scale).mean()
-        ab = (fake[:, 1:] - target[:, 1:]).abs().mean()
-        return (self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0, {"l1": l1, "l_nll": nll}
+            loss, parts = l1, {"l1": l1}
+        else:
+            nll = laplace_nll(target[:, :1], fake[:, :1], scale).mean()
+            ab = (fake[:, 1:] - target[:, 1:]).abs().mean()
+            loss, parts = (self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0, {"l1": l1, "l_nll": nll}
+        if self.hparams.blurred_l1_weight > 0:
+            parts["l_blurred_l1"] = blurred_l1(fake[:, :1], target[:, :1], self.hparams.blurred_l1_sigma_px)
+            loss = loss + self.hparams.blurred_l1_weight * parts["l_blurred_l1"]
+        return loss, parts
 
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams

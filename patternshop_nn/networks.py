@@ -55,6 +55,25 @@ def laplace_nll(target: torch.Tensor, mean: torch.Tensor, scale: torch.Tensor) -
     return (target - mean).abs() / scale + torch.log(scale)
 
 
+def gaussian_blur(maps: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Each channel of (B, C, H, W) ``maps`` blurred by a Gaussian of ``sigma_px`` pixels: a fixed depthwise
+    separable convolution, truncated at 3 sigma, edges replicated (H, W > 3 sigma); same shape and units."""
+    radius = max(1, round(3.0 * sigma_px))
+    offsets = torch.arange(-radius, radius + 1, dtype=maps.dtype, device=maps.device)
+    taps = torch.exp(-0.5 * (offsets / sigma_px) ** 2)
+    taps = taps / taps.sum()
+    channels = maps.shape[1]
+    padded = F.pad(maps, (radius, radius, radius, radius), mode="replicate")
+    rows = F.conv2d(padded, taps.view(1, 1, 1, -1).expand(channels, 1, 1, -1), groups=channels)
+    return F.conv2d(rows, taps.view(1, 1, -1, 1).expand(channels, 1, -1, 1), groups=channels)
+
+
+def blurred_l1(predicted: torch.Tensor, target: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Mean ``|G * predicted - G * target|`` over (B, C, H, W), G a Gaussian of ``sigma_px`` pixels
+    (:func:`gaussian_blur`): the error a few point spacings wide, in the maps' units; a scalar >= 0."""
+    return (gaussian_blur(predicted, sigma_px) - gaussian_blur(target, sigma_px)).abs().mean()
+
+
 def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:
     """Encoder level: LeakyReLU, 4x4 stride-2 convolution (halves the size), batch norm."""
     layers: list[nn.Module] = [nn.LeakyReLU(0.2), nn.Conv2d(in_channels, out_channels, 4, 2, 1, bias=not norm)]
