@@ -70,8 +70,9 @@ def gaussian_blur(maps: torch.Tensor, sigma_px: float) -> torch.Tensor:
 
 def blurred_l1(predicted: torch.Tensor, target: torch.Tensor, sigma_px: float) -> torch.Tensor:
     """Mean ``|G * predicted - G * target|`` over (B, C, H, W), G a Gaussian of ``sigma_px`` pixels
-    (:func:`gaussian_blur`): the error a few point spacings wide, in the maps' units; a scalar >= 0."""
-    return (gaussian_blur(predicted, sigma_px) - gaussian_blur(target, sigma_px)).abs().mean()
+    (:func:`gaussian_blur`; linear, so the difference is blurred once): the error a few point spacings wide, in the
+    maps' units; a scalar >= 0."""
+    return gaussian_blur(predicted - target, sigma_px).abs().mean()
 
 
 def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:
