@@ -174,12 +174,15 @@ class Pix2PixModule(L.LightningModule):
         from synthesis.atomic import atomic_path
         from synthesis.labmap import LabMap
 
+        def array(values: torch.Tensor) -> np.ndarray:  # float32: numpy has no bfloat16 (trainer.precision=bf16-mixed)
+            return values.detach().float().cpu().numpy()
+
         def srgb(maps: torch.Tensor) -> np.ndarray:
-            return LabMap.from_network(maps.detach().cpu().numpy()).to_srgb()
+            return LabMap.from_network(array(maps)).to_srgb()
 
         rows = []
         for k in range(min(self.hparams.sample_images, len(raster))):
-            counts = raster[k, 0].detach().cpu().numpy()
+            counts = array(raster[k, 0])
             points = 1.0 - np.repeat((counts / max(float(counts.max()), 1e-6))[..., None], 3, -1)
             rows.append(np.concatenate([points, srgb(predicted[k]), srgb(target[k])], axis=1))
         image = (np.concatenate(rows, axis=0) * 255).round().clip(0, 255).astype(np.uint8)

@@ -224,6 +224,13 @@ def test_train_end_to_end_and_resume(tmp_path: Path) -> None:
     assert resumed["global_step"] == 12 and resumed["epochs"] == 2
 
 
+def test_training_in_bfloat16_writes_its_samples(tmp_path: Path) -> None:
+    """bf16 mixed precision (a GPU's usual setting; Lightning runs it on the CPU too) must reach the sample PNGs."""
+    run = _train(tmp_path, "trainer.max_epochs=1", "trainer.precision=bf16-mixed")
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert list((tmp_path / "run" / "logs").glob("version_*/samples/epoch0000.png"))
+
+
 def test_fine_tuning_starts_from_another_runs_weights_with_a_decaying_rate(tmp_path: Path) -> None:
     first = _train(tmp_path, "trainer.max_epochs=1")
     assert first.returncode == 0, first.stderr[-2000:]
