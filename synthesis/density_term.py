@@ -44,6 +44,21 @@ through the points at the edge: astronaut, 5,000 points, seed 0, density PSNR at
 flag's stripes short of points). A map without an edge (every ``tau`` 1: a constant map) takes ``G`` alone, the same
 loss bit for bit. :class:`DensityTerm` computes both, with numba kernels for the splat, the gather and ``B``'s passes
 (:mod:`synthesis.fields_fast`) and :meth:`DensityTerm.reference`, plain numpy, that the tests compare them with.
+
+**Correlation edges.** ``R (c - t)`` counted every point in a regular cell, so the points of a clustered or Poisson
+target within a cell of a regular one (a red | blue edge) counted against the blue side's ink and were pushed by its
+residual: red stayed off the edge (0.48 of the expected density in the first 0.5 r_max, 1.56 inside), white 0.70.
+Where the cells' regularity varies, each point now counts with its own share ``s_i``, the regularity of the field pixel under
+it, and the target is the ink times that pixel's regularity, integrated against each cell's tent
+(:func:`_tent_means`, exact for ink uniform within each pixel): ``r = c_s - t_s``, no ``R``, and the gradient
+``s_i`` times the interpolant's. A point on a clustered or Poisson pixel feels nothing; a regular point feels the
+residual of regular points only. The shares are held for the run (:meth:`DensityTerm.hold_shares`, from the start):
+shares read where the points are at each call let a regular point that crossed the edge drop out of the count, and the
+term then pulled the next one after it (blue | white: blue's side 0.54-0.67 within 1 r_max); a held point that
+crossed still counts, where the target holds no regular ink, so none follows it. Shares from the bilinear regularity instead
+of the pixel's, with the gradient of the share itself: the edge's blend pushed red out of it (0.14). Maps of one
+regularity (constant maps, photographs) keep ``R (c - t)``, bit for bit. Measured: docs/synthesis.md, "Border and
+edge strips".
 """
 
 from __future__ import annotations
@@ -74,14 +89,17 @@ class DensityTerm:
     Attributes:
         shape: (Gh + 2 PAD, Gw + 2 PAD) cells, :data:`PAD` beyond each side of the domain's Gh x Gw; ``cell``: (cw, ch)
             their size in map units; ``cells``: Gh Gw.
-        target: the map's ink per cell filtered by the tent (:data:`TENT`), summing to n.
+        target: the map's ink per cell filtered by the tent (:data:`TENT`), summing to n; where the regularity varies,
+            the tent counts of the ink times its pixels' regularity (the regular share of n; "Correlation edges").
         mask: the target's regularity per cell, in [0, 1].
+        regular_px: (Hf, Wf) the regularity of each field pixel (``side_px`` per map unit) where it varies, else None;
+            ``shares``: (n,) the points' regular shares held by :meth:`hold_shares`, or None.
         sigma: (sy, sx) the blur in cells.
         weight: the term's weight; ``variance``: v.
     """
 
     def __init__(self, lab_map: LabMap, fields: MapFields, weight: float, scale: float):
-        from synthesis.edgepcf import regularity_at
+        from synthesis.edgepcf import regularity, regularity_at
 
         w, h = fields.domain
         n = fields.n
@@ -111,35 +129,68 @@ class DensityTerm:
             self.noise = (edge_blur(ones, squared, tuple(t * t for t in self.tau))
                           / edge_blur(ones, squared, tuple(np.ones_like(t) for t in self.tau)))
         self.active = self.weight > 0 and bool(self.mask.max() > 0)
+        self.regular_px, self.side_px, self.shares = None, fields.side_px, None
+        if self.mask.max() > self.mask.min():  # a correlation edge: counts split by regularity (see "Correlation edges")
+            regular = self.regular_px = regularity(fields.target_table, fields.radii)[fields.colour].astype(np.float64)  # (Hf, Wf)
+            (hm, wm), side = density.shape, fields.side_px  # each map pixel takes the field pixel under its centre
+            rows = np.minimum(((np.arange(hm) + 0.5) * (h / hm) * side).astype(np.int64), regular.shape[0] - 1)
+            cols = np.minimum(((np.arange(wm) + 0.5) * (w / wm) * side).astype(np.int64), regular.shape[1] - 1)
+            regular_ink = density * regular[rows[:, None], cols[None, :]]
+            self.target = (n / max(float(density.sum()), 1e-300)) * (_tent_means(hm, gh) @ regular_ink @ _tent_means(wm, gw).T)
 
     def _blur(self, values: np.ndarray) -> np.ndarray:
         return gaussian_blur(values, self.sigma, TRUNCATE, taps=self.taps)  # scipy.ndimage.gaussian_filter's, mode "constant"
 
     def _adjoint(self, counts: np.ndarray, fast: bool = True) -> tuple[float, np.ndarray]:
         """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell (``fast``: numba's edge blur)."""
-        residual = self.mask * (counts - self.target)
+        gate = self.mask if self.regular_px is None else 1.0  # split counts carry their regular shares already
+        residual = gate * (counts - self.target)
         blurred = self._blur(residual)
         size = self.cells
         if self.tau is None:
             loss = self.weight * float(np.vdot(blurred, blurred)) / (size * self.variance)
-            return loss, (2.0 * self.weight / (size * self.variance)) * self.mask * self._blur(blurred)
+            return loss, (2.0 * self.weight / (size * self.variance)) * gate * self._blur(blurred)
         edged = edge_blur(residual, self.taps, self.tau, fast)
         scaled = edged / self.noise
         plain = 1.0 - EDGE_SHARE
         loss = self.weight * (plain * float(np.vdot(blurred, blurred)) + EDGE_SHARE * float(np.vdot(edged, scaled)))
         u = plain * self._blur(blurred) + EDGE_SHARE * edge_blur(scaled, self.taps, self.tau, fast, adjoint=True)
-        return loss / (size * self.variance), (2.0 * self.weight / (size * self.variance)) * self.mask * u
+        return loss / (size * self.variance), (2.0 * self.weight / (size * self.variance)) * gate * u
 
     def __call__(self, xy: np.ndarray, gradient: np.ndarray | None = None) -> float:
         """Loss at xy (n, 2); adds its gradient into ``gradient`` (n, 2) when given (numba kernels)."""
         from synthesis.fields_fast import bilinear_gradient, bilinear_splat
 
+        if self.regular_px is not None:  # split counts: a weighted splat (numpy), the numba gradient times the shares
+            shares = self.shares_of(xy)
+            loss, u = self._adjoint(self.counts_reference(xy, shares))
+            if gradient is not None:
+                unweighted = np.zeros_like(gradient)
+                bilinear_gradient(xy, 1.0 / self.cell[0], 1.0 / self.cell[1], u, unweighted, PAD)
+                gradient += shares[:, None] * unweighted
+            return loss
         counts = np.zeros(self.shape)
         bilinear_splat(xy, 1.0 / self.cell[0], 1.0 / self.cell[1], counts, PAD)
         loss, u = self._adjoint(counts)
         if gradient is not None:
             bilinear_gradient(xy, 1.0 / self.cell[0], 1.0 / self.cell[1], u, gradient, PAD)
         return loss
+
+    def hold_shares(self, xy: np.ndarray) -> None:
+        """Fix each point's regular share for the calls that follow: the regularity of the field pixel under xy (n, 2),
+        the points' order kept (see the module docstring, "Correlation edges"); nothing where the regularity is even."""
+        self.shares = None
+        if self.regular_px is not None:
+            self.shares = self.shares_of(xy)
+
+    def shares_of(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) the points' regular shares in [0, 1]: those held (:meth:`hold_shares`), else their field pixels'."""
+        if self.shares is not None and len(self.shares) == len(xy):
+            return self.shares
+        height, width = self.regular_px.shape
+        rows = np.clip((np.asarray(xy)[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
+        cols = np.clip((np.asarray(xy)[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
+        return self.regular_px[rows, cols]
 
     def _corners(self, xy: np.ndarray):
         gh, gw = self.shape
@@ -150,23 +201,27 @@ class DensityTerm:
         return (np.clip(i0, 0, gh - 1), np.clip(i0 + 1, 0, gh - 1), np.clip(j0, 0, gw - 1), np.clip(j0 + 1, 0, gw - 1),
                 fu, fv)
 
-    def counts_reference(self, xy: np.ndarray) -> np.ndarray:
-        """(Gh, Gw) tent counts of the points xy (n, 2) per cell (mass beyond the outer centres stays in the outer cells)."""
+    def counts_reference(self, xy: np.ndarray, shares: np.ndarray | None = None) -> np.ndarray:
+        """(Gh, Gw) tent counts of the points xy (n, 2) per cell, each weighted by its share (n,) when given (mass beyond
+        the outer centres stays in the outer cells)."""
         gh, gw = self.shape
         i0, i1, j0, j1, fu, fv = self._corners(xy)
         counts = np.zeros(gh * gw)
         for i, wi in ((i0, 1 - fv), (i1, fv)):
             for j, wj in ((j0, 1 - fu), (j1, fu)):
-                counts += np.bincount(i * gw + j, wi * wj, minlength=gh * gw)
+                weights = wi * wj if shares is None else shares * wi * wj
+                counts += np.bincount(i * gw + j, weights, minlength=gh * gw)
         return counts.reshape(gh, gw)
 
     def reference(self, xy: np.ndarray) -> tuple[float, np.ndarray]:
         """Loss and gradient (n, 2) at xy (n, 2), plain numpy (the reference of :meth:`__call__`)."""
-        loss, u = self._adjoint(self.counts_reference(xy), fast=False)
+        shares = None if self.regular_px is None else self.shares_of(xy)
+        loss, u = self._adjoint(self.counts_reference(xy, shares), fast=False)
         i0, i1, j0, j1, fu, fv = self._corners(xy)
         gx = ((1 - fv) * (u[i0, j1] - u[i0, j0]) + fv * (u[i1, j1] - u[i1, j0])) / self.cell[0]
         gy = ((1 - fu) * (u[i1, j0] - u[i0, j0]) + fu * (u[i1, j1] - u[i0, j1])) / self.cell[1]
-        return loss, np.stack([gx, gy], axis=1)
+        gradient = np.stack([gx, gy], axis=1)
+        return loss, gradient if shares is None else shares[:, None] * gradient
 
 
 def transmittances(ink: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -215,6 +270,21 @@ def edge_pass_reference(values: np.ndarray, taps: np.ndarray, tau: np.ndarray) -
         out[:, : width - k] += taps[reach + k] * right * values[:, k:]
         out[:, k:] += taps[reach - k] * left * values[:, : width - k]
     return out
+
+
+def _tent_means(pixels: int, cells: int) -> np.ndarray:
+    """(cells + 2 PAD, pixels): the mean over each of ``pixels`` equal intervals of an axis of the tent of each of its
+    ``cells`` cells and the :data:`PAD` beyond (centred on the cell, one cell wide each side): ``M @ ink`` is the tent count
+    that ink per pixel (uniform within each pixel) is expected to splat into each cell. Columns sum to 1."""
+    def integral(u: np.ndarray) -> np.ndarray:  # of the tent max(1 - |t|, 0) from -inf to u
+        u = np.clip(u, -1.0, 1.0)
+        return np.where(u < 0, 0.5 * (u + 1) ** 2, 1.0 - 0.5 * (1 - u) ** 2)
+
+    width = cells / pixels  # a pixel, in cells
+    bounds = np.arange(pixels + 1) * width
+    centres = np.arange(cells + 2 * PAD)[:, None] - PAD + 0.5
+    steps = integral(bounds[None, :] - centres)
+    return (steps[:, 1:] - steps[:, :-1]) / width
 
 
 def _tent_filter(values: np.ndarray) -> np.ndarray:

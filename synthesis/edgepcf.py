@@ -58,7 +58,7 @@ import numpy as np
 from synthesis.cells import CellGrid
 from synthesis.edgepcf_fast import (WINDOW_PARTS, cumulate, expected_window_sums, point_lists, point_terms, row_guides,
                                     sloped_window_sums, window_bounds, window_sums, window_totals, window_weights)
-from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, Denominators, MapFields, sample_grid
+from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, Denominators, MapFields, sample_grid, sample_table
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff
@@ -150,8 +150,9 @@ class Neighbourhoods:
         guide: (P,) float32 guidance weights H of the pairs.
         spacing: (n,) local r_max at the points.
         anchor: (n, 2) the positions at the refresh, where the expected counts ``g D`` are taken
-            (:meth:`expected`: the target ``target`` (H, W, m) sampled there, ``side_px`` pixels per
-            map unit, times ``denominators``); for points near borders and edges ...
+            (:meth:`expected`: the target sampled there, times ``denominators``: rows of ``target_table`` (C, m)
+            indexed per pixel by ``colour`` (H, W), ``side_px`` pixels per map unit, as :class:`MapFields` holds it);
+            for points near borders and edges ...
         sloped: (K,) int64 ... (these) the expected counts change with position ...
         expected_slope: (K, m, 2) ... by ``g grad D`` (linearised between refreshes).
         variance_force: (K, 2) gradient of the variance compensation at the sloped points (see :func:`_variance_force`).
@@ -170,6 +171,7 @@ class Neighbourhoods:
         anchor_counts: the buffers (per-thread window sums of the tent counts, each pair's bin and pull) in which
             :func:`synthesis.edgepcf_fast.window_sums` left its counts at the anchors, while they are intact: the
             objective's first evaluation there reads them instead of counting again (None: count).
+        guided: False where every ``guide`` is 1 (a one-colour map): the kernels then do not read them.
     """
 
     offsets: np.ndarray
@@ -177,7 +179,8 @@ class Neighbourhoods:
     guide: np.ndarray
     spacing: np.ndarray
     anchor: np.ndarray
-    target: np.ndarray
+    target_table: np.ndarray
+    colour: np.ndarray
     side_px: int
     denominators: Denominators
     sloped: np.ndarray
@@ -193,10 +196,11 @@ class Neighbourhoods:
     window_expected: np.ndarray | None = None
     deviation: np.ndarray | None = None
     anchor_counts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    guided: bool = True
 
     def expected(self) -> np.ndarray:
         """(n, m) float64 target tent counts ``g D`` around each point at its anchor (plain numpy)."""
-        return sample_grid(self.target, self.anchor, self.side_px).astype(np.float64) * self.denominators.full()
+        return sample_table(self.target_table, self.colour, self.anchor, self.side_px).astype(np.float64) * self.denominators.full()
 
     @property
     def centres(self) -> np.ndarray:
@@ -299,15 +303,16 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
     if slopes:
         # the expected counts' slopes g grad D cumulated over the radii (K, m, 2), in place (as the levels below: 1M
         # points, 2 threads, 52 MB less at a refresh)
-        cumulative = sample_grid(fields.target, xy[sloped], fields.side_px).astype(np.float64)[..., None] * denominator.slopes
+        cumulative = fields.target_at(xy[sloped]).astype(np.float64)[..., None] * denominator.slopes
         cumulate(cumulative)  # np.cumsum(cumulative, axis=1, out=cumulative), faster
-        dispersion = sample_grid(fields.dispersion, xy[sloped], fields.side_px)
+        dispersion = fields.dispersion_at(xy[sloped])
         variance_force = _variance_force(windows, members, sloped, dispersion[..., None] * cumulative, fields.radii)
     else:
         cumulative, variance_force = np.zeros((len(sloped), len(fields.radii), 2)), np.zeros((len(sloped), 2))
-    hood = Neighbourhoods(offsets, neighbours, guide, spacing, xy.copy(), fields.target, fields.side_px, denominator, sloped,
-                          cumulative, variance_force, windows, *members, np.asarray(fields.radii, np.float64), regular,
-                          structured, deviation=deviation)  # expected_slope set below (window_sums does not read it)
+    hood = Neighbourhoods(offsets, neighbours, guide, spacing, xy.copy(), fields.target_table, fields.colour, fields.side_px,
+                          denominator, sloped, cumulative, variance_force, windows, *members,
+                          np.asarray(fields.radii, np.float64), regular, structured, deviation=deviation,
+                          guided=fields.guide)  # expected_slope set below (window_sums does not read it)
     if not slopes:
         hood.window_expected = expected_window_sums(hood, workspace)
         return hood
@@ -393,7 +398,7 @@ def regularity_at(fields: MapFields, xy: np.ndarray) -> np.ndarray:
     reads (a quarter of the target's 52: the start and the tone term sample it at 100k points or cells each), the mean
     taken in float64."""
     short = fields.radii <= REGULAR_RANGE
-    samples = sample_grid(np.ascontiguousarray(fields.target[..., short]), xy, fields.side_px).astype(np.float64)
+    samples = sample_table(fields.target_table[:, short], fields.colour, xy, fields.side_px).astype(np.float64)
     return regularity(samples, fields.radii[short])
 
 

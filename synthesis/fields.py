@@ -59,6 +59,18 @@ def sample_grid(grid: np.ndarray, xy: np.ndarray, side_px: int, out: np.ndarray 
     return out
 
 
+def sample_table(table: np.ndarray, colour: np.ndarray, xy: np.ndarray, side_px: int) -> np.ndarray:
+    """Bilinear samples (n, C) of the grid ``table[colour]`` (a (K, C) table's rows indexed per pixel by colour
+    (H, W) int32) at positions xy (n, 2) in map units, the table's dtype: :func:`sample_grid` of that grid, the same
+    values, without building it (a numba kernel)."""
+    from synthesis.fields_fast import table_samples
+
+    xy = np.asarray(xy, np.float64)
+    out = np.empty((len(xy), table.shape[1]), table.dtype)
+    table_samples(np.ascontiguousarray(table), colour, xy[:, 0] * side_px - 0.5, xy[:, 1] * side_px - 0.5, out)
+    return out
+
+
 def sample_grid_reference(grid: np.ndarray, xy: np.ndarray, side_px: int) -> np.ndarray:
     """Plain numpy version of :func:`sample_grid` (tests compare them)."""
     height, width, _ = grid.shape
@@ -150,8 +162,11 @@ class MapFields:
             (density at least the floor), the nearest such pixel's elsewhere, so spacings stay bounded next to white.
         spacing: (H, W, 1) local r_max of ``own_intensity``.
         latent: (H, W, 2) guide z in [0, 1].
-        target: (H, W, m) target PCF.
-        dispersion: (H, W, m) the target's count dispersion (variance model; :func:`synthesis.pcf.count_dispersion`).
+        colour: (H, W) int32 the pixel's row in the colour tables: ``target_table`` (C, m) float32, the target PCF of
+            each of the map's C distinct colours, and ``dispersion_table`` (C, m) float32, its count dispersion
+            (variance model; :func:`synthesis.pcf.count_dispersion`); :attr:`target` and :attr:`dispersion` are the
+            (H, W, m) grids they stand for, built only when asked for (the kernels sample the tables: 13.6 MB each at
+            256^2 pixels and 52 radii, while a map's few colours stay in cache).
         uniform: (H, W) bool, the pixel's neighbourhood is uniform (see :meth:`_flat_pixels`).
         flat: (H, W) bool, the pixel's neighbourhood has one intensity and latent (it may touch the border).
         radii: (m,) radii in units of r_max.
@@ -169,8 +184,9 @@ class MapFields:
     own_intensity: np.ndarray
     spacing: np.ndarray
     latent: np.ndarray
-    target: np.ndarray
-    dispersion: np.ndarray
+    colour: np.ndarray
+    target_table: np.ndarray
+    dispersion_table: np.ndarray
     uniform: np.ndarray
     flat: np.ndarray
     radii: np.ndarray
@@ -210,13 +226,13 @@ class MapFields:
         # of the time of unique rows, 30-90 ms at 256^2 pixels)
         keys, pixel_colour = np.unique(latent.view(np.uint64), return_inverse=True)
         colours = keys.view(np.float32).reshape(-1, 2)
-        pixel_colour = pixel_colour.reshape(latent.shape[:2])
+        pixel_colour = pixel_colour.reshape(latent.shape[:2]).astype(np.int32)
         fields = cls(
             domain=(w, h), side_px=max(lab_map.width, lab_map.height), n=n,
             intensity=intensity[..., None].astype(np.float32), own_intensity=own[..., None].astype(np.float32),
             spacing=r_max(own)[..., None].astype(np.float32),
-            latent=latent, target=palette.pcf_at_latent(colours).astype(np.float32)[pixel_colour],
-            dispersion=palette.dispersion_at_latent(colours).astype(np.float32)[pixel_colour],
+            latent=latent, colour=pixel_colour, target_table=palette.pcf_at_latent(colours).astype(np.float32),
+            dispersion_table=palette.dispersion_at_latent(colours).astype(np.float32),
             # one colour: every guide H is exp(0) = 1 (float32), so the guide's per-pair and per-window exponentials
             # are skipped (the same values: 100k points, 0.1-0.15 s of a run)
             uniform=np.empty(0, bool), flat=np.empty(0, bool), radii=radii, guide=guide and len(keys) > 1, nearest_ink=nearest,
@@ -225,6 +241,24 @@ class MapFields:
         flat, uniform = fields._flat_pixels()
         fields.flat, fields.uniform = flat & inked, uniform & inked  # off ink, the spacing is not the intensity's own
         return fields
+
+    @functools.cached_property
+    def target(self) -> np.ndarray:
+        """(H, W, m) float32 the target PCF per pixel (``target_table[colour]``; the kernels sample the table)."""
+        return self.target_table[self.colour]
+
+    @functools.cached_property
+    def dispersion(self) -> np.ndarray:
+        """(H, W, m) float32 the target's count dispersion per pixel (``dispersion_table[colour]``)."""
+        return self.dispersion_table[self.colour]
+
+    def target_at(self, xy: np.ndarray) -> np.ndarray:
+        """(n, m) float32 the target PCF at positions xy (n, 2), bilinear (:func:`sample_grid` of :attr:`target`)."""
+        return sample_table(self.target_table, self.colour, xy, self.side_px)
+
+    def dispersion_at(self, xy: np.ndarray) -> np.ndarray:
+        """(n, m) float32 the count dispersion at positions xy (n, 2), bilinear (:func:`sample_grid` of :attr:`dispersion`)."""
+        return sample_table(self.dispersion_table, self.colour, xy, self.side_px)
 
     def _flat_pixels(self) -> tuple[np.ndarray, np.ndarray]:
         """(H, W) bool each: the pixel's whole neighbourhood (cutoff x spacing) has one intensity and latent (flat),
@@ -236,6 +270,10 @@ class MapFields:
         height, width, _ = self.intensity.shape
         reach = np.ceil(neighbour_cutoff(self.radii) * self.spacing[..., 0] * self.side_px + 1.0)
         channels = [np.log(self.intensity[..., 0]), self.latent[..., 0], self.latent[..., 1]]
+        tolerances = (UNIFORM_TOLERANCE[0], UNIFORM_TOLERANCE[1], UNIFORM_TOLERANCE[1])
+        # a channel whose spread over the whole map is within its tolerance is within it in every window (a window's
+        # max - min is at most the map's, in floating point too): not tested (a constant map: 6 ms at 256^2 pixels)
+        varied = [(c, tolerance) for c, tolerance in zip(channels, tolerances) if not c.max() - c.min() <= tolerance]
         rows, cols = np.indices((height, width))
         to_border = np.minimum(np.minimum(rows, height - 1 - rows), np.minimum(cols, width - 1 - cols))
         flat_pixels = np.zeros((height, width), bool)
@@ -245,7 +283,7 @@ class MapFields:
             need = (reach <= half) & (reach > half // 2 if half > 1 else True)
             if need.any():
                 flat = np.ones((height, width), bool)
-                for channel, tolerance in zip(channels, (UNIFORM_TOLERANCE[0], UNIFORM_TOLERANCE[1], UNIFORM_TOLERANCE[1])):
+                for channel, tolerance in varied:
                     flat &= _window_spread(channel, half) <= tolerance
                 flat_pixels |= need & flat
                 uniform |= need & flat & (to_border >= half)
@@ -421,8 +459,8 @@ class MapFields:
         fields = {
             "spacing": sample_grid(self.spacing, xy, self.side_px)[:, 0],
             "latent": sample_grid(self.latent, xy, self.side_px),
-            "target": sample_grid(self.target, xy, self.side_px),
-            "dispersion": sample_grid(self.dispersion, xy, self.side_px),
+            "target": self.target_at(xy),
+            "dispersion": self.dispersion_at(xy),
         }
         if denominator:
             fields["denominator"] = self.denominator_at(xy)

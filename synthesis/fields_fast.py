@@ -43,6 +43,21 @@ def grid_samples(grid, px, py, out):  # pragma: no cover - jitted
             out[i, k] = top * (1.0 - ty) + bottom * ty
 
 
+@numba.njit(parallel=True, cache=True)
+def table_samples(table, colour, px, py, out):  # pragma: no cover - jitted
+    """Bilinear samples into out (n, C) of the (H, W, C) grid ``table[colour]`` (rows of a (K, C) table, indexed per
+    pixel by colour (H, W)) at pixel-index coordinates px, py (n,), edges clamped: :func:`grid_samples`'s arithmetic on
+    the same values, without the grid (a map's few colours stay in cache)."""
+    height, width = colour.shape
+    for i in numba.prange(len(px)):
+        r0, r1, c0, c1, tx, ty = corners(height, width, px[i], py[i])
+        k00, k01, k10, k11 = colour[r0, c0], colour[r0, c1], colour[r1, c0], colour[r1, c1]
+        for k in range(table.shape[1]):
+            top = table[k00, k] * (1.0 - tx) + table[k01, k] * tx
+            bottom = table[k10, k] * (1.0 - tx) + table[k11, k] * tx
+            out[i, k] = top * (1.0 - ty) + bottom * ty
+
+
 @numba.njit(cache=True)
 def _outside_arc(distance, radius):  # pragma: no cover - jitted
     """Half-angle of the arc of a circle of ``radius`` beyond a straight border ``distance`` away (0 if it does not reach)."""
@@ -196,13 +211,16 @@ def _separable_blur(values, down, across, threads, out):  # pragma: no cover - j
     reach = len(across) // 2
     for t in numba.prange(threads):
         row = np.empty(width + 2 * reach)  # one row blurred down the columns, zero-padded for the pass along it
+        inner = row[reach:reach + width]
         for i in range(t * height // threads, (t + 1) * height // threads):
             row[:] = 0.0
             for k in range(len(down)):
                 source = i + k - len(down) // 2
                 if 0 <= source < height:
+                    weight, line = down[k], values[source]  # the tap and the source row as their own names: the
+                    # loop vectorises (the same sums; 318^2 cells, 19 taps: 1.14 -> 0.56 ms a blur)
                     for j in range(width):
-                        row[reach + j] += down[k] * values[source, j]
+                        inner[j] += weight * line[j]
             for j in range(width):
                 total = 0.0
                 for k in range(len(across)):

@@ -336,6 +336,8 @@ def synthesize(
         hold_in_ink_reference(xy, np.zeros_like(xy), fields.nearest_ink, fields.ink_side_px)
     order = spatial_order(xy, fields.domain)  # points stay sorted in memory along a Hilbert curve while they move
     xy = xy[order]
+    if tone is not None:
+        tone.hold_shares(xy)  # each point's regular share fixed for the run (density_term, "Correlation edges")
     windows, denominators, workspace = WindowSampler(fields), DenominatorTracker(fields), Workspace()
     start_xy = xy.copy()
     first, second = np.zeros_like(xy), 0.0

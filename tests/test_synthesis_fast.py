@@ -13,7 +13,8 @@ from synthesis.cells import CellGrid
 from synthesis.edgepcf import (POISSON_TOLERANCE, REGULAR_RANGE, STRUCTURE_RANGE, find_neighbourhoods, regularity, structure,
                                window_taper)
 from synthesis.edgepcf_fast import FastObjective, cumulate, point_lists, point_terms, row_guides, window_weights
-from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, MapFields, guide_similarity, sample_grid, sample_grid_reference
+from synthesis.fields import (GUIDE_BANDWIDTH, DenominatorTracker, MapFields, guide_similarity, sample_grid,
+                              sample_grid_reference, sample_table)
 from synthesis.labmap import LabMap
 from synthesis.mapio import write_tiff
 from synthesis.palette import load_palette
@@ -119,6 +120,10 @@ def test_field_sampling_and_guides_match_the_references():
     xy = np.random.default_rng(1).random((500, 2)) * fields.domain
     for grid in (fields.target, fields.latent, fields.spacing):
         np.testing.assert_array_equal(sample_grid(grid, xy, fields.side_px), sample_grid_reference(grid, xy, fields.side_px))
+    assert len(fields.target_table) > 1  # the colour tables the kernels sample: the grids' values, bit for bit
+    for table, grid in ((fields.target_table, fields.target), (fields.dispersion_table, fields.dispersion)):
+        np.testing.assert_array_equal(sample_table(table, fields.colour, xy, fields.side_px),
+                                      sample_grid_reference(grid, xy, fields.side_px))
     latent = sample_grid(fields.latent, xy, fields.side_px).astype(np.float64)
     offsets, members, _ = CellGrid(xy, fields.domain, 0.05).query(xy, 0.1)
     rows = np.repeat(np.arange(len(xy)), np.diff(offsets))
@@ -179,6 +184,25 @@ def test_reused_workspace_and_threads_give_the_same_objective():
     again = FastObjective(find_neighbourhoods(fields, xy, workspace=workspace), 2, workspace)(xy)  # same buffers, 2 runs
     assert again[0] == pytest.approx(loss, rel=1e-12)
     np.testing.assert_allclose(again[1], gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())
+
+
+def test_one_colour_objective_skips_its_guides_with_the_same_bits():
+    """On a one-colour map every pair's guide is 1 and the window sums do not read them: the same loss and gradient,
+    bit for bit, as with the guides read."""
+    lab = np.zeros((32, 32, 3), np.float32)
+    lab[...] = (50.0, *load_palette().preset_ab()["blue"])
+    fields = MapFields.build(LabMap(lab), 1500, load_palette())
+    rng = np.random.default_rng(6)
+    xy = rng.random((1500, 2)) * fields.domain
+    xy = xy[spatial_order(xy, fields.domain)]
+    hood = find_neighbourhoods(fields, xy)
+    assert not hood.guided and np.all(hood.guide == 1.0)
+    moved = np.clip(xy + rng.normal(0.0, 1e-3, xy.shape), 0.0, 0.999)  # away from the anchors: the kernel counts
+    skipped = FastObjective(hood)(moved)
+    loss, gradient = skipped[0], skipped[1].copy()
+    hood.guided = True
+    read = FastObjective(hood)(moved)
+    assert read[0] == loss and np.array_equal(read[1], gradient)
 
 
 @pytest.mark.parametrize("threads", [1, 2])
@@ -470,11 +494,20 @@ def test_neighbour_term_short_lists_equal_plain_numpy():
     assert 0 < fast[2].sum() < len(xy) and 0 < len(fast[1]) < len(hood.neighbours)  # candidates and a real filter
 
 
-def test_tone_term_fast_path_equals_the_reference():
+@pytest.mark.parametrize("correlation_edge", [True, False])
+def test_tone_term_fast_path_equals_the_reference(correlation_edge):
+    """With a correlation edge the counts are split by regularity (weighted splat, shares times the numba gradient);
+    without one (blue on both sides of the density edge) the numba splat."""
     from synthesis.density_term import DensityTerm
 
-    fields = MapFields.build(split_map(), 1200, load_palette())
-    term = DensityTerm(split_map(), fields, weight=1e4, scale=3.0)
+    lab_map = split_map()
+    if not correlation_edge:
+        lab = np.array(lab_map.lab, np.float32)
+        lab[..., 1:] = load_palette().preset_ab()["blue"]
+        lab_map = LabMap(lab)
+    fields = MapFields.build(lab_map, 1200, load_palette())
+    term = DensityTerm(lab_map, fields, weight=1e4, scale=3.0)
+    assert (term.regular_px is not None) == correlation_edge and term.tau is not None
     xy = np.random.default_rng(3).random((1200, 2)) * fields.domain
     xy[:5] = [[0.0, 0.0], [fields.domain[0] * (1 - 1e-9), 0.3], [0.2, fields.domain[1] * (1 - 1e-9)], [0.5, 0.0], [1e-6, 0.2]]
     loss, gradient = term.reference(xy)
