@@ -14,7 +14,8 @@ scores patterns under the synthesiser's *own* objective (objective validity).
 
 Cases (``--only``): ``constant`` (constant maps of each preset, n = 4096),
 ``edges`` (blue|red and blue|white stripe maps), ``strips`` (every preset: border strips of a constant map and both
-sides of the edges of a stripe map with blue, or white for blue; NN CV against the generator's), ``logo``
+sides of the edges of a stripe map with blue, or white for blue; NN CV against the generator's; and both sides of the
+density edges of :data:`DENSITY_EDGES`, each in its own local r_max), ``logo``
 (examples/logo.tif, default n), ``photos`` (scikit-image's camera, astronaut, moon and coins as ``from-image`` makes them, blue preset,
 20,000 points; anchors: weighted Lloyd, 60 iterations, and its capacity-constrained variant CCVT, 50 iterations,
 both from a stratified start; ``--photos``, ``--photo-n``, ``--photo-seeds`` to develop on fewer).
@@ -53,6 +54,8 @@ N_PHOTO = 20000
 STRIP_PRESETS = ["white", "blue", "green", "red", "step", "lattice", "lloyd", "matern"]  # every preset of the palette
 STRIP_TARGETS = ["white", "blue", "step", "green", "red"]  # strips within 0.8-1.25 (issue 27); the others are reported
 STRIP_DEPTH = 3.0  # strips within this many r_max of the border or an edge
+# density edges (issue 27, the logo's P counter): stripes (dark preset, L, light preset, L), the dark side first
+DENSITY_EDGES = {"blue|blue": ("blue", 15.0, "blue", 76.0), "red|blue": ("red", 15.0, "blue", 76.0)}
 CASES = ["constant", "edges", "strips", "logo", "photos"]
 
 
@@ -201,12 +204,16 @@ def case_constant(seeds: list[int], keep: dict) -> dict:
     return out
 
 
-def stripe_lab(left_ab, right_ab, stripe_px: int = 16, size=(64, 128), L: float = 50.0) -> np.ndarray:
-    """Vertical stripes ``stripe_px`` wide alternating left_ab (first) and right_ab, constant L."""
+def stripe_lab(left_ab, right_ab, stripe_px: int = 16, size=(64, 128), L: float = 50.0,
+               right_L: float | None = None) -> np.ndarray:
+    """Vertical stripes ``stripe_px`` wide alternating left_ab (first) and right_ab, L (the right stripes: ``right_L``
+    if given)."""
     H, W = size
     lab = np.zeros((H, W, 3), np.float32)
     lab[..., 0] = L
     stripe = (np.arange(W) // stripe_px) % 2
+    if right_L is not None:
+        lab[:, stripe == 1, 0] = right_L
     lab[:, stripe == 0, 1:] = left_ab
     lab[:, stripe == 1, 1:] = right_ab
     return lab
@@ -229,6 +236,75 @@ def edge_profile(xy: np.ndarray, lab: np.ndarray, stripe_px: int, n: int, reach:
     signed = np.where(first_colour, -np.abs(x - nearest), np.abs(x - nearest))
     per_unit = n / (w * h) * (h - 4 * unit) * len(edges)
     return fs.strip_profile(signed, per_unit, unit, -reach, reach)
+
+
+def density_edge_profile(xy: np.ndarray, lab: np.ndarray, stripe_px: int, n: int, reach: float = STRIP_DEPTH):
+    """Strip counts on both sides of the edges of a stripe map whose two colours differ in density, each side in strips
+    0.5 of its own local r_max wide, against that side's expected count (map ink x points per ink); points within 2 mean
+    r_max of the top/bottom border left out. Returns (strip centres in the side's r_max, first colour's ratios (nearest
+    the edge first), second colour's ratios)."""
+    H, W = lab.shape[:2]
+    w, h = domain_of(lab)
+    unit = fs.r_max(n, w * h)
+    width = stripe_px * w / W
+    edges = np.arange(1, W // stripe_px) * width
+    density = density_of(lab)
+    intensity = n * density / (density.mean() * w * h)  # points per unit area of each pixel
+    x, y = xy[:, 0], xy[:, 1]
+    x = x[(y > 2 * unit) & (y < h - 2 * unit)]
+    distance = np.abs(x - edges[np.argmin(np.abs(x[:, None] - edges[None]), axis=1)])
+    first_colour = (np.floor(x / width).astype(int) % 2) == 0
+    sides = []
+    for side, column in ((first_colour, 0), (~first_colour, stripe_px)):
+        own = float(intensity[0, column])
+        side_unit = float(fs.r_max_of_intensity(own))
+        centres, ratio = fs.strip_profile(distance[side], own * (h - 4 * unit) * len(edges), side_unit, 0.0, reach)
+        sides.append(ratio)
+    return centres, sides[0], sides[1]
+
+
+def density_edge_generator(lab: np.ndarray, stripe_px: int, n: int, dark: str, light: str, seed: int) -> np.ndarray:
+    """A true sample of a density-edge stripe map: each side cut from its preset's generator (torus) at its own intensity."""
+    w, h = domain_of(lab)
+    width = stripe_px * w / lab.shape[1]
+    density = density_of(lab)
+    out = []
+    for k, (name, column) in enumerate(((dark, 0), (light, stripe_px))):
+        count = int(round(n * density[0, column] / (density.mean() * w * h)))  # points of the side's density in [0, 1)^2
+        points = generate(name, count, 2000 + 10 * seed + k)
+        points = points[points[:, 1] < h]
+        out.append(points[(np.floor(points[:, 0] / width).astype(int) % 2) == k])
+    return np.concatenate(out)
+
+
+def case_density_edges(seeds: list[int], names: list[str]) -> dict:
+    """Both sides of the density edges of :data:`DENSITY_EDGES` (64x128 maps of 16 px stripes, n = :data:`N_CONSTANT`):
+    strips 0.5 local r_max wide within :data:`STRIP_DEPTH` local r_max, ratios to the expected density, profiles pooled
+    over the seeds; yardstick: each side cut from its generator."""
+    presets = load_palette().preset_ab()
+    n, stripe_px = N_CONSTANT, 16
+    out: dict = {}
+    for key in names:
+        dark, dark_L, light, light_L = DENSITY_EDGES[key]
+        lab = stripe_lab(presets[dark], presets[light], stripe_px, L=dark_L, right_L=light_L)
+        synth, gen = [], []
+        for seed in seeds:
+            xy, _ = run_synthesis(lab, n, seed)
+            centres, *sides = density_edge_profile(xy, lab, stripe_px, n)
+            synth.append(sides)
+            sample = density_edge_generator(lab, stripe_px, n, dark, light, seed)
+            gen.append(density_edge_profile(sample, lab, stripe_px, len(sample))[1:])
+        synth, gen = np.mean(synth, axis=0), np.mean(gen, axis=0)  # (2 sides, strips)
+        row = {"dark": f"{dark} L {dark_L:g}", "light": f"{light} L {light_L:g}",
+               "dark_min": float(synth[0].min()), "dark_max": float(synth[0].max()),
+               "light_min": float(synth[1].min()), "light_max": float(synth[1].max()),
+               "gen_min": float(gen.min()), "gen_max": float(gen.max()),
+               "dark_profile": [r4(v) for v in synth[0]], "light_profile": [r4(v) for v in synth[1]],
+               "gen_dark_profile": [r4(v) for v in gen[0]], "gen_light_profile": [r4(v) for v in gen[1]]}
+        print(f"density edge {dark} L {dark_L:g} | {light} L {light_L:g}: dark side from the edge {np.round(synth[0], 2).tolist()}, "
+              f"light side {np.round(synth[1], 2).tolist()} (generator {gen.min():.2f}..{gen.max():.2f})", flush=True)
+        out[key] = row
+    return out
 
 
 def case_edges(seeds: list[int], pairs: list[str], keep: dict) -> dict:
@@ -477,7 +553,7 @@ def target_rows(results: dict) -> list[dict]:
     strips = results.get("strips")
     if strips:
         for name, m in strips.items():
-            if not isinstance(m, dict):
+            if not isinstance(m, dict) or name == "density_edges":
                 continue
             for label, lo, hi, reference in (
                     ("border", m["border_min"], m["border_max"], f"generator {m['gen_border_min']:.2f}..{m['gen_border_max']:.2f}"),
@@ -490,6 +566,12 @@ def target_rows(results: dict) -> list[dict]:
             if name in ("green", "red", "matern"):
                 add(f"{name}: NN CV / generator's (strips case)", m["nn_cv_ratio"], "0.85-1.15",
                     within(m["nn_cv_ratio"], 0.85, 1.15) if name != "matern" else None)
+        for m in strips.get("density_edges", {}).values():
+            for side in ("dark", "light"):
+                lo, hi = m[f"{side}_min"], m[f"{side}_max"]
+                add(f"density edge {m['dark']} | {m['light']}, {m[side]} side strips (0-3 local r_max) min..max / expected",
+                    f"{lo:.3f}..{hi:.3f}", "within 0.8-1.25", within(lo, 0.8, 1.25) and within(hi, 0.8, 1.25),
+                    f"generator {m['gen_min']:.2f}..{m['gen_max']:.2f}")
     logo = results.get("logo")
     if logo:
         m = logo["median"]
@@ -651,6 +733,8 @@ def main() -> None:
     parser.add_argument("--photo-n", type=int, default=N_PHOTO, help=f"photos case: points (default {N_PHOTO})")
     parser.add_argument("--photo-seeds", type=int, default=None, help="photos case: number of seeds (default: --seeds)")
     parser.add_argument("--strip-presets", action="append", choices=STRIP_PRESETS, help="strips case: only this preset (repeatable)")
+    parser.add_argument("--density-edges", action="append", choices=list(DENSITY_EDGES),
+                        help="strips case: only this density edge (repeatable; default: all unless --strip-presets)")
     parser.add_argument("--label", default=None, help="a name for the code measured (recorded in the results)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_args()
@@ -673,6 +757,9 @@ def main() -> None:
             results[case] = case_edges(seeds, ["red"] if args.quick else ["red", "white"], keep)
         elif case == "strips":
             results[case] = case_strips(seeds, args.strip_presets or STRIP_PRESETS)
+            names = args.density_edges or ([] if args.strip_presets else list(DENSITY_EDGES))
+            if names:
+                results[case]["density_edges"] = case_density_edges(seeds, names)
         elif case == "logo":
             results[case] = case_logo(seeds)
         elif case == "photos":
