@@ -219,23 +219,27 @@ def stripe_lab(left_ab, right_ab, stripe_px: int = 16, size=(64, 128), L: float 
     return lab
 
 
+def stripe_edge_distances(xy: np.ndarray, lab: np.ndarray, stripe_px: int, unit: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Of the points xy (n, 2) farther than 2 ``unit`` from the top/bottom border of a map of vertical stripes
+    ``stripe_px`` wide: their distances (k,) to the nearest stripe edge, whether each lies on the first colour's side
+    (k,) bool, and the number of edges."""
+    w, h = domain_of(lab)
+    width = stripe_px * w / lab.shape[1]
+    edges = np.arange(1, lab.shape[1] // stripe_px) * width
+    x, y = xy[:, 0], xy[:, 1]
+    x = x[(y > 2 * unit) & (y < h - 2 * unit)]
+    distance = np.abs(x - edges[np.argmin(np.abs(x[:, None] - edges[None]), axis=1)])
+    return distance, (np.floor(x / width).astype(int) % 2) == 0, len(edges)
+
+
 def edge_profile(xy: np.ndarray, lab: np.ndarray, stripe_px: int, n: int, reach: float = 4.0):
     """Strip counts against the signed distance to the nearest stripe edge (negative on the first
     colour's side), points within 2 r_max of the top/bottom border left out; ratio to expected."""
-    H, W = lab.shape[:2]
     w, h = domain_of(lab)
     unit = fs.r_max(n, w * h)
-    pixel = w / W
-    width = stripe_px * pixel
-    edges = np.arange(1, W // stripe_px) * width
-    x, y = xy[:, 0], xy[:, 1]
-    keep = (y > 2 * unit) & (y < h - 2 * unit)
-    x = x[keep]
-    nearest = edges[np.argmin(np.abs(x[:, None] - edges[None]), axis=1)]
-    first_colour = (np.floor(x / width).astype(int) % 2) == 0
-    signed = np.where(first_colour, -np.abs(x - nearest), np.abs(x - nearest))
-    per_unit = n / (w * h) * (h - 4 * unit) * len(edges)
-    return fs.strip_profile(signed, per_unit, unit, -reach, reach)
+    distance, first_colour, count = stripe_edge_distances(xy, lab, stripe_px, unit)
+    per_unit = n / (w * h) * (h - 4 * unit) * count
+    return fs.strip_profile(np.where(first_colour, -distance, distance), per_unit, unit, -reach, reach)
 
 
 def density_edge_profile(xy: np.ndarray, lab: np.ndarray, stripe_px: int, n: int, reach: float = STRIP_DEPTH):
@@ -243,22 +247,16 @@ def density_edge_profile(xy: np.ndarray, lab: np.ndarray, stripe_px: int, n: int
     0.5 of its own local r_max wide, against that side's expected count (map ink x points per ink); points within 2 mean
     r_max of the top/bottom border left out. Returns (strip centres in the side's r_max, first colour's ratios (nearest
     the edge first), second colour's ratios)."""
-    H, W = lab.shape[:2]
     w, h = domain_of(lab)
     unit = fs.r_max(n, w * h)
-    width = stripe_px * w / W
-    edges = np.arange(1, W // stripe_px) * width
     density = density_of(lab)
     intensity = n * density / (density.mean() * w * h)  # points per unit area of each pixel
-    x, y = xy[:, 0], xy[:, 1]
-    x = x[(y > 2 * unit) & (y < h - 2 * unit)]
-    distance = np.abs(x - edges[np.argmin(np.abs(x[:, None] - edges[None]), axis=1)])
-    first_colour = (np.floor(x / width).astype(int) % 2) == 0
+    distance, first_colour, count = stripe_edge_distances(xy, lab, stripe_px, unit)
     sides = []
     for side, column in ((first_colour, 0), (~first_colour, stripe_px)):
         own = float(intensity[0, column])
         side_unit = float(fs.r_max_of_intensity(own))
-        centres, ratio = fs.strip_profile(distance[side], own * (h - 4 * unit) * len(edges), side_unit, 0.0, reach)
+        centres, ratio = fs.strip_profile(distance[side], own * (h - 4 * unit) * count, side_unit, 0.0, reach)
         sides.append(ratio)
     return centres, sides[0], sides[1]
 
