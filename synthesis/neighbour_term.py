@@ -48,6 +48,7 @@ import math
 import numba
 import numpy as np
 
+from synthesis.edgepcf_fast import unsigned
 from synthesis.fields import MapFields, sample_grid
 
 BARRIER = 1.0  # the barrier's weight relative to the pull's
@@ -95,8 +96,8 @@ class NeighbourTerm:
         """Loss at xy (n, 2); adds its gradient into ``gradient`` (n, 2) when given (numba kernel)."""
         n = len(xy)
         out = np.zeros((n, 2)) if gradient is None else gradient
-        loss = _neighbour_pass(xy, self.offsets, self.neighbours, self.lower, self.upper, self.spacing,
-                               BARRIER * self.weight / n, self.weight / n, out, self.nearest, self.pull)
+        loss = _neighbour_pass(xy, unsigned(self.offsets), unsigned(self.neighbours), self.lower, self.upper,
+                               self.spacing, BARRIER * self.weight / n, self.weight / n, out, self.nearest, self.pull)
         _scatter_pulls(xy, self.nearest, self.pull, out)
         return loss
 
@@ -142,10 +143,13 @@ def short_lists(xy: np.ndarray, offsets: np.ndarray, neighbours: np.ndarray, low
     candidates (numba; :func:`short_lists_reference` is the plain version)."""
     keep = np.empty(len(neighbours), np.bool_)
     candidate = np.empty(len(xy), np.bool_)
-    counts = _short_counts(xy, offsets, neighbours, lower, upper, slack, keep, candidate)
+    offsets, indices = unsigned(offsets), unsigned(neighbours)
+    counts = _short_counts(xy, offsets, indices, lower, upper, slack, keep, candidate, numba.get_num_threads())
     short = np.zeros(len(xy) + 1, np.int64)
     np.cumsum(counts, out=short[1:])
-    return short, neighbours[keep], candidate
+    kept = np.empty(short[-1], neighbours.dtype)
+    _kept(offsets, indices, keep, short, unsigned(kept))  # neighbours[keep], in parallel
+    return short, kept, candidate
 
 
 def short_lists_reference(xy: np.ndarray, offsets: np.ndarray, neighbours: np.ndarray, lower: np.ndarray,
@@ -166,35 +170,57 @@ def short_lists_reference(xy: np.ndarray, offsets: np.ndarray, neighbours: np.nd
 
 
 @numba.njit(parallel=True, cache=True)
-def _short_counts(xy, offsets, neighbours, lower, upper, slack, keep, candidate):  # pragma: no cover - jitted
-    """Mark the pairs :func:`short_lists` keeps in ``keep`` (P,) and the candidates (n,); returns kept counts (n,)."""
+def _short_counts(xy, offsets, neighbours, lower, upper, slack, keep, candidate, threads):  # pragma: no cover - jitted
+    """Mark the pairs :func:`short_lists` keeps in ``keep`` (P,) and the candidates (n,); returns kept counts (n,).
+    ``offsets`` and ``neighbours`` as :func:`synthesis.edgepcf_fast.unsigned` views. Each of ``threads`` runs of
+    centres keeps a centre's squared distances from the pass that finds its nearest neighbour for the pass that keeps
+    its pairs (the same values, gathered once)."""
     n = len(xy)
     counts = np.zeros(n, np.int64)
-    for c in numba.prange(n):
-        best, which = math.inf, -1
-        for p in range(offsets[c], offsets[c + 1]):
-            k = neighbours[p]
-            dx, dy = xy[k, 0] - xy[c, 0], xy[k, 1] - xy[c, 1]
-            squared = dx * dx + dy * dy
-            if squared < best:
-                best, which = squared, p
-        candidate[c] = math.sqrt(best) >= upper[c] - slack[c]
-        reach = (upper[c] if candidate[c] else lower[c]) + slack[c]
-        kept = 0
-        for p in range(offsets[c], offsets[c + 1]):
-            k = neighbours[p]
-            dx, dy = xy[k, 0] - xy[c, 0], xy[k, 1] - xy[c, 1]
-            keep[p] = math.sqrt(dx * dx + dy * dy) < reach or (candidate[c] and p == which)
-            kept += keep[p]
-        counts[c] = kept
+    for t in numba.prange(threads):
+        most = 0
+        for c in range(t * n // threads, (t + 1) * n // threads):
+            most = max(most, np.int64(offsets[c + 1] - offsets[c]))
+        squared = np.empty(most)
+        for c in range(t * n // threads, (t + 1) * n // threads):
+            first = offsets[c]
+            count = offsets[c + 1] - first
+            for q in range(count):
+                k = neighbours[first + q]
+                dx, dy = xy[k, 0] - xy[c, 0], xy[k, 1] - xy[c, 1]
+                squared[q] = dx * dx + dy * dy
+            best, which = math.inf, count  # no pair yet (q never reaches it)
+            for q in range(count):
+                if squared[q] < best:
+                    best, which = squared[q], q
+            candidate[c] = math.sqrt(best) >= upper[c] - slack[c]
+            reach = (upper[c] if candidate[c] else lower[c]) + slack[c]
+            kept = 0
+            for q in range(count):
+                keep[first + q] = math.sqrt(squared[q]) < reach or (candidate[c] and q == which)
+                kept += keep[first + q]
+            counts[c] = kept
     return counts
+
+
+@numba.njit(parallel=True, cache=True)
+def _kept(offsets, neighbours, keep, short, out):  # pragma: no cover - jitted
+    """out (Q,) = neighbours[keep], centre by centre from their short lists' ``short`` offsets (n + 1,) on
+    (``offsets``, ``neighbours`` and ``out`` as :func:`synthesis.edgepcf_fast.unsigned` views)."""
+    for c in numba.prange(len(offsets) - 1):
+        o = short[c]
+        for p in range(offsets[c], offsets[c + 1]):
+            if keep[p]:
+                out[o] = neighbours[p]
+                o += 1
 
 
 @numba.njit(parallel=True, cache=True)
 def _neighbour_pass(xy, offsets, neighbours, lower, upper, spacing, barrier, pull, grad, nearest,
                     coefficient):  # pragma: no cover - jitted
     """Barrier forces gathered per point and each point's own pull; ``nearest`` (n,) int32 / ``coefficient`` (n,):
-    the pulled neighbour (-1: none) and ``dL/dd / d`` of the pull, for :func:`_scatter_pulls`. Returns the loss."""
+    the pulled neighbour (-1: none) and ``dL/dd / d`` of the pull, for :func:`_scatter_pulls`. Returns the loss.
+    ``offsets`` and ``neighbours`` as :func:`synthesis.edgepcf_fast.unsigned` views (100k points: 3.0 -> 2.6 ms a call)."""
     n = len(xy)
     total = 0.0
     for c in numba.prange(n):
