@@ -42,7 +42,10 @@ neighbour refreshes, the expected counts near borders and edges linearised),
 so memory stays O(pairs). That linear change of the expected counts with a
 point's position follows the pattern's own pair level, not the target's
 (:func:`slope_levels`): otherwise a pattern short of its pairs gains by moving
-towards borders and edges, where fewer are expected.
+towards borders and edges, where fewer are expected. At correlation edges it moves
+towards the pattern's measured pair derivative (:func:`edge_slope_levels`): a pair
+counts around both of its points, so a move changes the counts about twice as much
+as the point's own expected slope says.
 
 Two implementations: :func:`objective_reference` (plain numpy, the reference
 the tests compare against) and the fused numba kernels of
@@ -71,6 +74,9 @@ POISSON_TOLERANCE = 0.1  # a target PCF within this of 1 at every radius is whit
 STRUCTURE_RANGE = 0.4  # ... and from this much further on, a structured one
 VARIANCE_FLOOR = 0.05  # pairs^2: one stray pair where the target expects none is 4.5 standard deviations
 LEVEL_PRIOR = 0.5  # pairs per point added to both sums of a window's pair level (:func:`slope_levels`): 1 where none expected
+EDGE_GUIDE = 0.5  # a sloped point with a pair guided below this lies at a correlation edge (:func:`edge_slope_levels`)
+EDGE_SLOPE_SHARE = 0.5  # share of the pair-derivative correction that the slopes there take (measured, see the function)
+EDGE_SLOPE_MAX = 3.0  # a window's measured ratio of pair derivative to model slope is clipped to [0, this]
 
 
 @dataclass(frozen=True)
@@ -318,7 +324,10 @@ def find_neighbourhoods(fields: MapFields, xy: np.ndarray, window_centres: list[
         return hood
     observed, hood.window_expected = window_sums(hood, xy, workspace, level_only=True)
     if len(sloped):
-        cumulative *= slope_levels(hood, observed, hood.window_expected)[..., None]  # levelled
+        levels = slope_levels(hood, observed, hood.window_expected)
+        if hood.guided:  # correlation edges: the slopes follow the pattern's own pair derivative there
+            levels = edge_slope_levels(hood, cumulative, levels)
+        cumulative *= levels[..., None]  # levelled
         hood.expected_slope = _by_axis(cumulative.shape)  # the fast objective takes each axis's (K, m) as they are
         for axis in (0, 1):  # np.diff, prepend=0, one axis at a time into its contiguous (K, m) (10k: 1.5 -> 0.3 ms)
             slope = hood.expected_slope[..., axis]
@@ -356,6 +365,107 @@ def slope_levels(hood: Neighbourhoods, observed: np.ndarray, expected: np.ndarra
         total += sloped_window_sums(hood.sloped, hood.member_offsets, hood.member_window, hood.member_weight, lo,
                                     np.ones((hi - lo, 1)))
     return np.where(total > 0, levels / np.maximum(total, 1e-300), 1.0)
+
+
+def pair_slopes(hood: Neighbourhoods, points: np.ndarray, slopes: np.ndarray, slope_rows: np.ndarray,
+                chunk: int = 1 << 20) -> np.ndarray:
+    """(k, m) ``P_pj . slopes_pj`` for each of ``points`` (k,) int: P_pj (2,) the gradient of the pattern's guided
+    cumulative tent counts at the anchors with respect to the point's position, ``d/dx_p sum_c C_c(j)`` over every
+    centre c, so a point's pairs count twice, around itself (its own counts) and around each neighbour (their counts
+    of it); ``C_c(j)`` = the tent counts of c's bins up to j, the objective's cumulative counts; ``slopes[slope_rows]``
+    (k, m, 2) the directions it is projected on, per radius. Plain numpy, over the pair list in runs of ``chunk`` pairs
+    (no (k, m, 2) or whole-list temporaries)."""
+    xy, m = hood.anchor, len(hood.radii)
+    row = np.full(len(xy), -1, np.int64)
+    row[points] = np.arange(len(points))
+    inv_width = 1.0 / (hood.radii[1] - hood.radii[0])
+    out = np.zeros((len(points), m))
+    for first in range(0, len(hood.neighbours), chunk):
+        pairs = np.arange(first, min(first + chunk, len(hood.neighbours)))
+        centres = np.searchsorted(hood.offsets, pairs, side="right") - 1
+        neighbours = hood.neighbours[pairs].astype(np.int64)
+        held = (row[centres] >= 0) | (row[neighbours] >= 0)
+        pairs, centres, neighbours = pairs[held], centres[held], neighbours[held]
+        offset = xy[neighbours] - xy[centres]
+        distance = np.sqrt(offset[:, 0] ** 2 + offset[:, 1] ** 2)
+        scale = inv_width / hood.spacing[centres]
+        t = distance * scale
+        keep = (t < m) & (distance > 0)
+        # up to bin j a pair counts 1 - (t - j) for t in (j, j + 1), 1 nearer, 0 farther: d C(j) / dt = -1 there, so
+        # d C_c(j) / d x_c = guide * scale * offset / distance, and minus that for the neighbour
+        pairs, centres, neighbours, offset, bin_ = (pairs[keep], centres[keep], neighbours[keep], offset[keep],
+                                                   np.floor(t[keep]).astype(np.int64))
+        force = (hood.guide[pairs] * scale[keep] / distance[keep])[:, None] * offset
+        for role, sign in ((centres, 1.0), (neighbours, -1.0)):
+            at = row[role]
+            mine = at >= 0
+            at, j = at[mine], bin_[mine]
+            along = slope_rows[at]
+            projected = sign * (force[mine, 0] * slopes[along, j, 0] + force[mine, 1] * slopes[along, j, 1])
+            np.add.at(out, (at, j), projected)
+    return out
+
+
+def edge_points(hood: Neighbourhoods) -> np.ndarray:
+    """(K,) bool: the sloped points that lie at a correlation edge (a pair of theirs guided below :data:`EDGE_GUIDE`)."""
+    lowest = np.ones(len(hood.spacing))
+    listed = np.flatnonzero(np.diff(hood.offsets) > 0)
+    lowest[listed] = np.minimum.reduceat(hood.guide, hood.offsets[listed])
+    return lowest[hood.sloped] < EDGE_GUIDE
+
+
+def edge_slope_levels(hood: Neighbourhoods, model: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """(K, m) the slope levels of the sloped points, with those at a correlation edge (:func:`edge_points`) moved
+    :data:`EDGE_SLOPE_SHARE` x (1 - regularity) of the way from their pair level towards the ratio of the pattern's own
+    pair-count derivative (:func:`pair_slopes`) to the model slope ``model`` (K, m, 2), ``g grad D`` cumulated over the
+    radii.
+
+    The objective's pair forces move a point by its own counts and by its neighbours' counts of it (each pair counts
+    twice), while the expected counts' slope ``g grad D`` is its own count's only: for Poisson points the pairs'
+    derivative is twice the slope. Wherever a window is short of pairs (a clustered target while its clusters form,
+    level 0.3-0.4 at the second refresh) the pairs then pull points off the edge harder than the slope holds them:
+    red's side of a red | blue edge thinned to 0.77 of the expected density 0.5-1 r_max from it (12 seeds) and
+    gathered 2-3 r_max inside, while a true sample run through the same objective keeps its edge. The ratio per level
+    window (:attr:`WindowScale.level`) and radius is the least-squares fit ``sum a^2 P.M / sum a^2 M.M`` over its edge
+    points (P the pair derivative, M the model slope), clipped to [0, :data:`EDGE_SLOPE_MAX`], averaged over each
+    point's windows with weights ``a_wc^2`` as :func:`slope_levels` averages levels. The whole ratio (share 1) put red
+    at 0.88-1.23 but green's strip at 0.5-1 r_max at 1.28, the minimum its objective keeps from a true sample
+    (1.20-1.23); half: red 0.84-1.09, green 0.86-1.21 (docs/synthesis.md, "Border and edge strips"). Regular targets
+    keep their level (a regular start already holds their pairs, and the tone term their edges): with the share,
+    blue's side of a lattice | blue edge piled to 1.28 (1.24 before).
+    """
+    edge = edge_points(hood)
+    if not edge.any():
+        return levels
+    points = hood.sloped[edge]
+    rows = np.flatnonzero(edge)
+    fit, norm = pair_slopes(hood, points, model, rows), model[rows, :, 0] ** 2 + model[rows, :, 1] ** 2  # (k, m)
+    row = np.full(len(hood.spacing), -1, np.int64)
+    row[points] = np.arange(len(points))
+    bounds = window_bounds(hood.windows)
+    ratio, total = np.zeros((len(points), len(hood.radii))), np.zeros((len(points), len(hood.radii)))
+    for family, lo, hi in zip(hood.windows, bounds[:-1], bounds[1:]):
+        if not family.scale.level:
+            continue
+        member = row[family.members]
+        held = member >= 0
+        windows, first = np.unique(family.owners[held], return_index=True)  # owners ascend: each window's run of rows
+        if not len(windows):
+            continue
+        weight, member = family.weights[held].astype(np.float64) ** 2, member[held]
+        sums = np.empty((2, len(windows), len(hood.radii)))
+        for j in range(len(hood.radii)):  # a radius at a time: no (members, m) temporaries
+            sums[0, :, j] = np.add.reduceat(weight * fit[member, j], first)
+            sums[1, :, j] = np.add.reduceat(weight * norm[member, j], first)
+        known, window_ratio = np.zeros((hi - lo, len(hood.radii))), np.zeros((hi - lo, len(hood.radii)))
+        known[windows] = sums[1] > 0  # a window whose edge points have no slope at a radius measures nothing there
+        window_ratio[windows] = np.clip(sums[0] / np.maximum(sums[1], 1e-300), 0.0, EDGE_SLOPE_MAX) * known[windows]
+        ratio += sloped_window_sums(points, hood.member_offsets, hood.member_window, hood.member_weight, lo, window_ratio)
+        total += sloped_window_sums(points, hood.member_offsets, hood.member_window, hood.member_weight, lo, known)
+    out = levels.copy()
+    fitted = np.where(total > 0, ratio / np.maximum(total, 1e-300), levels[rows])
+    out[rows] += (EDGE_SLOPE_SHARE * (1.0 - hood.regularity[points]))[:, None] * (fitted - levels[rows])
+    return out
 
 
 def _variance_force(windows: list[Windows], members: tuple[np.ndarray, np.ndarray, np.ndarray], sloped: np.ndarray,
