@@ -77,6 +77,8 @@ LEVEL_PRIOR = 0.5  # pairs per point added to both sums of a window's pair level
 EDGE_GUIDE = 0.5  # a sloped point with a pair guided below this lies at a correlation edge (:func:`edge_slope_levels`)
 EDGE_SLOPE_SHARE = 0.5  # share of the pair-derivative correction that the slopes there take (measured, see the function)
 EDGE_SLOPE_MAX = 3.0  # a window's measured ratio of pair derivative to model slope is clipped to [0, this]
+TROUGH_RANGE = (0.5, 1.5)  # radii (r_max) between a clustered target's clusters, where green's PCF dips to 0.21 (red: >= 1.56)
+TROUGH_LEVEL, TROUGH_DEPTH = 0.9, 0.4  # a trough below 0.9 counts (Matern's 0.98 and white's 0.97 do not), fully at 0.5
 
 
 @dataclass(frozen=True)
@@ -510,6 +512,24 @@ def regularity_at(fields: MapFields, xy: np.ndarray) -> np.ndarray:
     short = fields.radii <= REGULAR_RANGE
     samples = sample_table(fields.target_table[:, short], fields.colour, xy, fields.side_px).astype(np.float64)
     return regularity(samples, fields.radii[short])
+
+
+def spread_clusters(target: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(...) in [0, 1]: how far the target PCF (..., m) is clustered with its clusters spread regularly (green: 1; red,
+    Matern, white, blue, step: 0): its short-range PCF above 1 (:data:`REGULAR_RANGE`) and a trough between its clusters,
+    its minimum over :data:`TROUGH_RANGE`, below :data:`TROUGH_LEVEL` (full at ``TROUGH_LEVEL - TROUGH_DEPTH``)."""
+    short, between = radii <= REGULAR_RANGE, (radii >= TROUGH_RANGE[0]) & (radii <= TROUGH_RANGE[1])
+    clustered = np.clip(target[..., short].mean(axis=-1) - 1.0, 0.0, 1.0)
+    return clustered * np.clip((TROUGH_LEVEL - target[..., between].min(axis=-1)) / TROUGH_DEPTH, 0.0, 1.0)
+
+
+def spread_clusters_at(fields: MapFields, xy: np.ndarray) -> np.ndarray:
+    """(n,) :func:`spread_clusters` of the target of the field pixel under each position xy (n, 2) (its colour's, not a
+    bilinear blend: between red and blue pixels a blend has clusters and a trough, and neither side has both)."""
+    h, w = fields.colour.shape
+    cols = np.clip((xy[:, 0] * fields.side_px).astype(np.int64), 0, w - 1)
+    rows = np.clip((xy[:, 1] * fields.side_px).astype(np.int64), 0, h - 1)
+    return spread_clusters(fields.target_table.astype(np.float64), fields.radii)[fields.colour[rows, cols]]
 
 
 def structure(target: np.ndarray) -> np.ndarray:

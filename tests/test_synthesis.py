@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 
 from patternshop import cli
 from synthesis.edgepcf import (estimate, find_neighbourhoods, local_errors, objective_reference, pair_counts_reference,
-                               pair_slopes)
+                               pair_slopes, spread_clusters)
 from synthesis.edgepcf_fast import FastObjective
 from synthesis.errors import PatternshopError
 from synthesis.fields import MapFields, sample_grid
@@ -21,7 +21,7 @@ from synthesis.mapio import write_tiff
 from synthesis.palette import load_palette
 from synthesis.pcf import count_dispersion, r_max, stationary_pcf
 from synthesis.stratified import StratifiedSampler, hilbert_cells, hilbert_index, random_points
-from synthesis.synthesize import initial_points, point_count, reflect, synthesize
+from synthesis.synthesize import border_steps, initial_points, point_count, reflect, synthesize
 from synthesis.tone import density_fidelity
 
 
@@ -428,6 +428,34 @@ def test_clusters_do_not_pile_up_on_the_border():
         xy = synthesize(preset_map("red", size=(64, 64)), n=n, seed=seed).points.xy
         shares.append(np.mean(np.minimum.reduce([xy[:, 0], 1 - xy[:, 0], xy[:, 1], 1 - xy[:, 1]]) < 0.5 * r_max(n)) / ring)
     assert 0.6 < np.mean(shares) < 1.35  # measured 0.77 (before the level: 1.67)
+
+
+def test_green_clusters_do_not_layer_against_the_border():
+    # green's clusters repel each other; with the long steps of clustered targets near the border (expected counts
+    # linearised at each refresh) they layered against it: denser within 1 r_max, thinner at 1.5-3 r_max
+    # (synthesize.border_steps)
+    n, unit = 4096, r_max(4096)
+    contrasts = []
+    for seed in range(4):
+        xy = synthesize(preset_map("green", size=(64, 64)), n=n, seed=seed).points.xy
+        depth = np.minimum.reduce([xy[:, 0], 1 - xy[:, 0], xy[:, 1], 1 - xy[:, 1]]) / unit
+        density = [np.mean((depth >= a) & (depth < b)) / ((1 - 2 * a * unit) ** 2 - (1 - 2 * b * unit) ** 2)
+                   for a, b in ((0.0, 1.0), (1.5, 3.0))]
+        contrasts.append(density[0] / density[1])
+    assert np.mean(contrasts) < 1.2  # measured 1.10 (seeds 1.25, 1.04, 1.19, 0.91); before 1.29 (1.27, 1.39, 1.37, 1.12)
+
+
+def test_only_clusters_spread_regularly_take_short_steps_at_the_border():
+    palette = load_palette()
+    fields = {name: MapFields.build(preset_map(name), 1500, palette) for name in palette.preset_ab()}
+    spread = {name: float(spread_clusters(f.target_table[0], f.radii)) for name, f in fields.items()}
+    assert spread.pop("green") == 1.0
+    assert all(value == 0.0 for value in spread.values())  # red, Matern, white and the regular presets
+    green, red = fields["green"], fields["red"]
+    xy = np.array([[0.01, 0.5], [0.5, 0.5], [0.5, 0.995]])
+    spacing, freedom = np.full(3, 0.03), np.full(3, 3.0)
+    np.testing.assert_array_equal(border_steps(green, xy, spacing, freedom), [1.0, 3.0, 1.0])
+    assert border_steps(red, xy, spacing, freedom) is freedom
 
 
 def test_slopes_at_a_correlation_edge_follow_the_pairs_that_move_with_a_point():
