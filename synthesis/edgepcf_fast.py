@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from synthesis.fields_fast import corners
+from synthesis.fields_fast import corners, guide_gap
 from synthesis.workspace import Workspace, scratch
 
 if TYPE_CHECKING:
@@ -255,10 +255,11 @@ def _window_slopes(sums, expected, deviation, dead, scale, slope, loss, active):
 @numba.njit(**_JIT)
 def _row_guides(latent, row_latent, offsets, members, bandwidth, out):  # pragma: no cover - jitted
     for r in numba.prange(len(offsets) - 1):
-        za, zb = row_latent[r, 0], row_latent[r, 1]
         for p in range(offsets[r], offsets[r + 1]):
-            da, db = latent[members[p], 0] - za, latent[members[p], 1] - zb
-            d2 = da * da + db * db
+            d2 = 0.0
+            for c in range(latent.shape[1]):
+                d = guide_gap(latent[members[p], c] - row_latent[r, c], c)
+                d2 += d * d
             out[p] = math.exp(-d2 / (2.0 * bandwidth)) if d2 > 1e-20 else 1.0  # exp rounds to 1.0 there anyway
 
 
@@ -266,8 +267,9 @@ def row_guides(latent: np.ndarray, row_latent: np.ndarray, offsets: np.ndarray, 
                bandwidth: float, out: np.ndarray | None = None) -> np.ndarray:
     """(E,) guidance H between each entry's point and its row: ``exp(-|latent[members[p]] - row_latent[r]|^2 / (2 bandwidth))``.
 
-    latent (n, 2) at the points, row_latent (R, 2) at the rows (centres or windows), CSR offsets (R + 1,) over members (E,);
-    ``out``: an (E,) float64 array to fill. Same values as :func:`synthesis.fields.guide_similarity`.
+    latent (n, C) guide coordinates at the points (:meth:`synthesis.fields.MapFields.guide_at`; the third, the density
+    level, through :func:`synthesis.fields_fast.guide_gap`), row_latent (R, C) at the rows (centres or windows), CSR
+    offsets (R + 1,) over members (E,); ``out``: an (E,) float64 array to fill. Same values as :func:`synthesis.fields.guide_similarity`.
     """
     out = np.empty(len(members)) if out is None else out
     _row_guides(np.ascontiguousarray(latent, np.float64), np.ascontiguousarray(row_latent, np.float64), offsets, members,

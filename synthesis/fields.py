@@ -42,6 +42,28 @@ RING_SPACING = 0.35  # quadrature: arc length between nodes on a ring, in units 
 UNIFORM_TOLERANCE = (0.02, 0.005)  # log-intensity and latent spreads below which a neighbourhood counts as uniform
 # (the denominator then differs from the uniform value by well under 1 %: a linear trend cancels around the point)
 POISSON_PAIR_SCALE = 2.0 / math.sqrt(3.0)  # intensity * r_max^2, the same at every density
+STEP_RATIO = 2.0  # a pixel is on a density step where its density level (median filtered: LEVEL_MEDIAN) and one of its
+# 8 neighbours' differ by more than this ratio: there the fields a point (or a quadrature node) is measured with are its pixel's, elsewhere bilinear
+# (:meth:`MapFields.snapped`; docs/synthesis.md, "Density edges")
+DENSITY_GUIDE = 0.32  # the guide's third coordinate, the density level, is this x ln(own intensity / its mean), median
+# filtered (LEVEL_MEDIAN); differences within synthesis.fields_fast.LEVEL_DEAD_ZONE (0.16: intensity ratios up to 1.65)
+# count 0, so a step of ratio 3.5 (L 15 | L 76) weighs its pairs H = 0.003, a ratio of 2 H = 0.68 (docs/synthesis.md,
+# "Density edges")
+LEVEL_MEDIAN = 2.0  # the density level is the median over a square of +- this many median spacings (at most
+# LEVEL_MEDIAN_PX pixels): a texture finer than that (a photograph's grass, a textured map) is no guide edge, a step stays
+# sharp; unfiltered, the level cost camera 0.9 dB of density PSNR at 1 spacing
+LEVEL_MEDIAN_PX = 6
+
+
+def step_pixels(log_level: np.ndarray) -> np.ndarray | None:
+    """(H, W) bool: pixels of an (H, W) log intensity whose value and one of their 8 neighbours' (edges repeated) differ
+    by more than ln :data:`STEP_RATIO` (a density step: a sharp edge of the map, not a soft gradient); None if none is."""
+    height, width = log_level.shape
+    padded = np.pad(log_level, 1, mode="edge")
+    around = np.stack([padded[i:i + height, j:j + width] for i in range(3) for j in range(3)])
+    reach = math.log(STEP_RATIO)
+    step = (around.max(0) - log_level > reach) | (log_level - around.min(0) > reach)
+    return step if step.any() else None
 
 
 def sample_grid(grid: np.ndarray, xy: np.ndarray, side_px: int, out: np.ndarray | None = None) -> np.ndarray:
@@ -128,6 +150,13 @@ def nearest_ink(density: np.ndarray) -> tuple[np.ndarray | None, int]:
 def _window_spread(values: np.ndarray, half: int) -> np.ndarray:
     """(H, W) max - min of values (H, W) over the square of ``2 half + 1`` pixels around each pixel, edges repeated:
     ``scipy.ndimage.maximum_filter - minimum_filter`` with ``mode="nearest"``, exactly (without importing scipy.ndimage)."""
+    high, low = _window_extremes(values, half)
+    return high - low
+
+
+def _window_extremes(values: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) max and (H, W) min of values (H, W) over the square of ``2 half + 1`` pixels around each pixel, edges
+    repeated (:func:`_window_spread`)."""
     size = 2 * half + 1
     extremes = []
     for pick in (np.maximum, np.minimum):
@@ -141,12 +170,18 @@ def _window_spread(values: np.ndarray, half: int) -> np.ndarray:
             length = out.shape[axis]
             out = np.moveaxis(pick(run[:length], run[size - span:size - span + length]), 0, axis)
         extremes.append(out)
-    return extremes[0] - extremes[1]
+    return extremes[0], extremes[1]
 
 
 def guide_similarity(z_a: np.ndarray, z_b: np.ndarray, bandwidth: float = GUIDE_BANDWIDTH) -> np.ndarray:
-    """Guidance term H = exp(-|z_a - z_b|^2 / (2 bandwidth)) over the last axis (latent z)."""
-    return np.exp(-((z_a - z_b) ** 2).sum(-1) / (2.0 * bandwidth))
+    """Guidance term H = exp(-|z_a - z_b|^2 / (2 bandwidth)) over the last axis (latent z, then, if there, the density
+    level, whose difference counts beyond :data:`synthesis.fields_fast.LEVEL_DEAD_ZONE`)."""
+    from synthesis.fields_fast import LEVEL_DEAD_ZONE
+
+    d = np.asarray(z_a - z_b, np.float64)
+    if d.shape[-1] > 2:
+        d = np.concatenate([d[..., :2], np.maximum(np.abs(d[..., 2:]) - LEVEL_DEAD_ZONE, 0.0)], axis=-1)
+    return np.exp(-(d ** 2).sum(-1) / (2.0 * bandwidth))
 
 
 @dataclass
@@ -161,7 +196,11 @@ class MapFields:
         own_intensity: (H, W, 1) the intensity a point at x is measured against: ``intensity`` where the map has ink
             (density at least the floor), the nearest such pixel's elsewhere, so spacings stay bounded next to white.
         spacing: (H, W, 1) local r_max of ``own_intensity``.
-        latent: (H, W, 2) guide z in [0, 1].
+        latent: (H, W, 2) latent correlation z in [0, 1].
+        guide_z: (H, W, 3) float32 the guide's coordinates: z and :data:`DENSITY_GUIDE` x ln(own intensity / its mean),
+            the density level (a density step is a guide edge, as a correlation edge is); sampled by :meth:`guide_at`.
+        step: (H, W) bool, the pixel is on a density step (:func:`step_pixels` of the median-filtered level): fields are
+            read there at the pixel's centre (:meth:`snapped`); None: nowhere.
         colour: (H, W) int32 the pixel's row in the colour tables: ``target_table`` (C, m) float32, the target PCF of
             each of the map's C distinct colours, and ``dispersion_table`` (C, m) float32, its count dispersion
             (variance model; :func:`synthesis.pcf.count_dispersion`); :attr:`target` and :attr:`dispersion` are the
@@ -194,6 +233,8 @@ class MapFields:
     nearest_ink: np.ndarray | None = None
     ink_side_px: int = 1
     neighbour_bounds: np.ndarray | None = None
+    guide_z: np.ndarray | None = None
+    step: np.ndarray | None = None
 
     @classmethod
     def build(cls, lab_map: LabMap, n: int, palette: Palette, guide: bool = True) -> MapFields:
@@ -203,7 +244,7 @@ class MapFields:
         down first; the fields are smooth on that scale and the denominator's
         cost grows with the pixel count.
         """
-        from synthesis.fields_fast import nearest_true
+        from synthesis.fields_fast import LEVEL_DEAD_ZONE, nearest_true, running_median
 
         if n < 1:
             raise PatternshopError(f"point count must be at least 1, got {n}")
@@ -227,6 +268,14 @@ class MapFields:
         keys, pixel_colour = np.unique(latent.view(np.uint64), return_inverse=True)
         colours = keys.view(np.float32).reshape(-1, 2)
         pixel_colour = pixel_colour.reshape(latent.shape[:2]).astype(np.int32)
+        # the level of the ink a point is measured against (off ink the nearest ink's, as its spacing: the floor's level
+        # beside ink weighed a window centred on paper, or a point on a faint pixel, H = 0 against every neighbour and
+        # their sums 0 / 0, NaN positions), median filtered (:data:`LEVEL_MEDIAN`)
+        half = min(LEVEL_MEDIAN_PX, max(1, round(LEVEL_MEDIAN * float(np.median(r_max(own))) * max(lab_map.width, lab_map.height))))
+        # separable (rows, then columns): a fifth of a square median's time, a straight step as sharp
+        log_level = running_median(running_median(np.log(own / own.mean()), half).T, half).T
+        level = DENSITY_GUIDE * log_level
+        guide_z = np.ascontiguousarray(np.concatenate([latent, level[..., None]], axis=2), np.float32)
         fields = cls(
             domain=(w, h), side_px=max(lab_map.width, lab_map.height), n=n,
             intensity=intensity[..., None].astype(np.float32), own_intensity=own[..., None].astype(np.float32),
@@ -235,8 +284,10 @@ class MapFields:
             dispersion_table=palette.dispersion_at_latent(colours).astype(np.float32),
             # one colour: every guide H is exp(0) = 1 (float32), so the guide's per-pair and per-window exponentials
             # are skipped (the same values: 100k points, 0.1-0.15 s of a run)
-            uniform=np.empty(0, bool), flat=np.empty(0, bool), radii=radii, guide=guide and len(keys) > 1, nearest_ink=nearest,
+            uniform=np.empty(0, bool), flat=np.empty(0, bool), radii=radii,
+            guide=guide and (len(keys) > 1 or not np.ptp(level) <= LEVEL_DEAD_ZONE), nearest_ink=nearest,
             ink_side_px=ink_side_px, neighbour_bounds=palette.neighbour_bounds_at_latent(colours)[pixel_colour],
+            guide_z=guide_z, step=step_pixels(log_level),
         )
         flat, uniform = fields._flat_pixels()
         fields.flat, fields.uniform = flat & inked, uniform & inked  # off ink, the spacing is not the intensity's own
@@ -299,8 +350,10 @@ class MapFields:
         unbounded value ``lambda s^2 E_j`` (= 2/sqrt(3) E_j). Elsewhere polar
         quadrature around the point itself in units of s(x) (rings
         :data:`RING_STEP` apart, nodes :data:`RING_SPACING` apart along each
-        ring; lambda = 0 outside the domain; z and lambda bilinear, exactly as
-        the estimator samples them at the points), divided by the same
+        ring; lambda = 0 outside the domain; z bilinear, lambda and the
+        density level too except on a step pixel, where they are its own
+        (:meth:`snapped`), exactly as the estimator samples them at the
+        points: :meth:`guide_at`), divided by the same
         quadrature of the unbounded uniform case and times the exact value, so
         quadrature error cancels and only edges, borders and gradients move it.
 
@@ -341,11 +394,11 @@ class MapFields:
         if not len(todo):
             return todo, values, gradient
         at = xy[todo]
-        spacing = sample_grid(self.spacing, at, self.side_px)[:, 0].astype(np.float64)
+        spacing = self.sample(self.spacing, at)[:, 0].astype(np.float64)
         border = self.flat[row[todo], col[todo]]
         general = ~border
-        latent = sample_grid(self.latent, at[general], self.side_px)
-        own = sample_grid(self.own_intensity, at[general], self.side_px)[:, 0]
+        latent = self.guide_at(at[general])
+        own = self.sample(self.own_intensity, at[general])[:, 0]
 
         def ratios(shift: np.ndarray) -> np.ndarray:
             out = np.empty((len(at), m))
@@ -376,7 +429,8 @@ class MapFields:
         return np.unique(self._quadrature[0])
 
     def _quadrature_at(self, xy: np.ndarray, spacing: np.ndarray, latent: np.ndarray, own: np.ndarray) -> np.ndarray:
-        """(k, m) quadrature ratio (1 in a uniform neighbourhood) around points xy (k, 2) with spacing (k,), latent (k, 2), intensity (k,).
+        """(k, m) quadrature ratio (1 in a uniform neighbourhood) around points xy (k, 2) with spacing (k,), guide
+        coordinates (k, 3) (:attr:`guide_z`), intensity (k,).
 
         The fused kernel of :mod:`synthesis.fields_fast`; :meth:`_quadrature_reference` is the plain version.
         """
@@ -384,12 +438,63 @@ class MapFields:
 
         _, dx, dy, tent = self._quadrature
         ring_tent, node_ring = self._rings
-        means = ring_means(self.intensity[..., 0].astype(np.float64), self.latent[..., 0].astype(np.float64),
-                           self.latent[..., 1].astype(np.float64), xy[:, 0] * self.side_px - 0.5,
-                           xy[:, 1] * self.side_px - 0.5, spacing * self.side_px, latent[:, 0].astype(np.float64),
-                           latent[:, 1].astype(np.float64), own.astype(np.float64), dx, dy, node_ring,
-                           len(ring_tent), self.guide, GUIDE_BANDWIDTH)
+        means = ring_means(self.intensity[..., 0].astype(np.float64), self._guide_planes, self._step_plane,
+                           xy[:, 0] * self.side_px - 0.5,
+                           xy[:, 1] * self.side_px - 0.5, spacing * self.side_px, np.ascontiguousarray(latent, np.float64),
+                           own.astype(np.float64), dx, dy, node_ring,
+                           len(ring_tent), self.guide, 2 if len(self.target_table) == 1 else 0, *self._reads(xy, spacing, latent[:, 2]),
+                           GUIDE_BANDWIDTH)
         return (means @ ring_tent) / ring_tent.sum(0)
+
+    def _reads(self, xy: np.ndarray, spacing: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the quadrature around points xy (k, 2) with spacing (k,) and density level (k,) must read (the same values
+        without the rest): (k,) int64 the guide coordinates up to 2 (z alone) where the level over every node's pixels
+        stays within the dead zone of the point's (each node's level gap is 0), else 3; (k,) uint8 whether a :attr:`step`
+        pixel lies within reach (else every node is bilinear). Reading both at every node made camera's quadrature 6x
+        as long."""
+        from synthesis.fields_fast import LEVEL_DEAD_ZONE
+
+        if self.step is None and not self.guide:  # neither is read
+            return np.full(len(xy), 2, np.int64), np.zeros(len(xy), np.uint8)
+        half, high, low, steps = self._reach_boxes
+        u = self._quadrature[0]
+        reach = (u.max() + SLOPE_STEP) * spacing * self.side_px + 2.0  # pixels: nodes, the unshifted point, bilinear support
+        box = np.minimum(np.searchsorted(half, reach), len(half) - 1)
+        height, width = high.shape[1:]
+        col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
+        row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
+        inside = reach <= half[box]
+        flat = inside & (high[box, row, col] - level <= LEVEL_DEAD_ZONE) & (level - low[box, row, col] <= LEVEL_DEAD_ZONE)
+        return np.where(flat, 2, 3).astype(np.int64), (~inside | steps[box, row, col]).astype(np.uint8)
+
+    @functools.cached_property
+    def _reach_boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Half-widths (K,) 1, 2, 3, 4, 6, 8, 11, ... pixels (steps of sqrt 2); (K, H, W) float32 the density level's
+        max and min, and (K, H, W) bool whether a :attr:`step` pixel lies, in the box of each half-width around each
+        pixel (:meth:`_reads`)."""
+        level = self.guide_z[..., 2]
+        half = np.unique(np.round(2.0 ** (np.arange(2 * int(math.log2(max(level.shape))) + 3) / 2)).astype(np.int64))
+        high, low = (np.stack(planes) for planes in zip(*(_window_extremes(level, int(h)) for h in half)))
+        counts = np.zeros((level.shape[0] + 1, level.shape[1] + 1))  # summed-area table of the step pixels
+        if self.step is not None:
+            np.cumsum(np.cumsum(self.step, axis=0), axis=1, out=counts[1:, 1:])
+        rows, cols = np.arange(level.shape[0]), np.arange(level.shape[1])
+        steps = []
+        for h in half:
+            r0, r1 = np.clip(rows - h, 0, len(rows)), np.clip(rows + h + 1, 0, len(rows))
+            c0, c1 = np.clip(cols - h, 0, len(cols)), np.clip(cols + h + 1, 0, len(cols))
+            steps.append((counts[r1][:, c1] - counts[r0][:, c1] - counts[r1][:, c0] + counts[r0][:, c0]) > 0)
+        return half.astype(np.float64), high, low, np.stack(steps)
+
+    @functools.cached_property
+    def _step_plane(self) -> np.ndarray:
+        """(H, W) uint8 :attr:`step` for the quadrature's kernel ((0, 0): no step)."""
+        return np.zeros((0, 0), np.uint8) if self.step is None else self.step.astype(np.uint8)
+
+    @functools.cached_property
+    def _guide_planes(self) -> np.ndarray:
+        """(3, H, W) float64 :attr:`guide_z`, one contiguous plane per coordinate (the quadrature's kernel reads them)."""
+        return np.ascontiguousarray(np.moveaxis(self.guide_z, -1, 0), np.float64)
 
     @functools.cached_property
     def _rings(self) -> tuple[np.ndarray, np.ndarray]:
@@ -404,6 +509,8 @@ class MapFields:
         """Plain numpy/scipy version of :meth:`_quadrature_at` (tests compare them)."""
         from scipy import ndimage
 
+        from synthesis.fields_fast import LEVEL_DEAD_ZONE
+
         height, width, _ = self.intensity.shape
         _, dx, dy, tent = self._quadrature
         free = tent.sum(0)
@@ -417,13 +524,22 @@ class MapFields:
             py = py0[block, None] + spacing_px[block, None] * dy[None]
             inside = (px >= -0.5) & (px <= width - 0.5) & (py >= -0.5) & (py <= height - 0.5)
             coords = np.stack([py.reshape(-1), px.reshape(-1)])
-            lam = ndimage.map_coordinates(self.intensity[..., 0], coords, order=1, mode="nearest").reshape(py.shape)
-            weight = lam * inside / own[block, None]
+            snapped = coords.copy()  # lambda and the density level: a step pixel's own value on it (:meth:`snapped`)
+            if self.step is not None:
+                pixel = np.clip(np.floor(coords + 0.5).astype(np.int64), 0, np.array([[height - 1], [width - 1]]))
+                on = self.step[pixel[0], pixel[1]]
+                snapped[:, on] = pixel[:, on]
+
+            def bilinear(plane: np.ndarray, at: np.ndarray) -> np.ndarray:
+                return ndimage.map_coordinates(plane, at, order=1, mode="nearest").reshape(py.shape)
+
+            weight = bilinear(self.intensity[..., 0], snapped) * inside / own[block, None]
             if self.guide:
-                za = ndimage.map_coordinates(self.latent[..., 0], coords, order=1, mode="nearest").reshape(py.shape)
-                zb = ndimage.map_coordinates(self.latent[..., 1], coords, order=1, mode="nearest").reshape(py.shape)
-                centre = latent[block]
-                weight = weight * np.exp(-((za - centre[:, :1]) ** 2 + (zb - centre[:, 1:]) ** 2) / (2 * GUIDE_BANDWIDTH))
+                squares = np.maximum(np.abs(bilinear(self.guide_z[..., 2], snapped) - latent[block, 2:]) - LEVEL_DEAD_ZONE,
+                                     0.0) ** 2
+                for c in range(2):  # the latent z: bilinear
+                    squares = squares + (bilinear(self.guide_z[..., c], coords) - latent[block, c:c + 1]) ** 2
+                weight = weight * np.exp(-squares / (2 * GUIDE_BANDWIDTH))
             result[block] = (weight @ tent) / free
         return result
 
@@ -454,10 +570,38 @@ class MapFields:
         return u, dx, dy, tent
 
     # --- sampling at points -------------------------------------------------
+    def snapped(self, xy: np.ndarray) -> np.ndarray:
+        """(n, 2) positions xy (n, 2) in map units, those on a :attr:`step` pixel moved to its centre: bilinear samples
+        there are the pixel's own value (the map's density is constant on each pixel, and a bilinear sample spreads a
+        step over a pixel: within half a pixel of it a light point had a dark point's spacing; docs/synthesis.md,
+        "Density edges"), elsewhere they blend as before (a photograph's soft gradients)."""
+        if self.step is None:
+            return xy
+        height, width = self.step.shape
+        col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
+        row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
+        on = self.step[row, col]
+        out = np.array(xy, np.float64)
+        out[on, 0], out[on, 1] = (col[on] + 0.5) / self.side_px, (row[on] + 0.5) / self.side_px
+        return out
+
+    def sample(self, grid: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """(n, C) samples of a (H, W, C) field at positions xy (n, 2): bilinear, a step pixel's own value on it
+        (:meth:`snapped`)."""
+        return sample_grid(grid, self.snapped(xy), self.side_px)
+
+    def guide_at(self, xy: np.ndarray) -> np.ndarray:
+        """(n, 3) float64 the guide coordinates at positions xy (n, 2): z bilinear (a correlation edge's blend is
+        measured with it), the density level as the spacing (:meth:`sample`)."""
+        out = np.empty((len(xy), 3))
+        out[:, :2] = sample_grid(self.latent, xy, self.side_px)
+        out[:, 2] = self.sample(self.guide_z[..., 2:], xy)[:, 0]
+        return out
+
     def at(self, xy: np.ndarray, denominator: bool = True) -> dict[str, np.ndarray]:
         """Fields at positions xy (n, 2): spacing (n,), latent (n, 2), target, dispersion and (optionally) denominator (n, m)."""
         fields = {
-            "spacing": sample_grid(self.spacing, xy, self.side_px)[:, 0],
+            "spacing": self.sample(self.spacing, xy)[:, 0],
             "latent": sample_grid(self.latent, xy, self.side_px),
             "target": self.target_at(xy),
             "dispersion": self.dispersion_at(xy),
@@ -519,7 +663,7 @@ class DenominatorTracker:
             self.slot = np.full(len(xy), -1, np.int32)
             self.values, self.slopes = np.empty((0, m)), np.empty((0, m, 2), np.float32)
         else:
-            spacing = sample_grid(self.fields.spacing, xy, self.fields.side_px)[:, 0]
+            spacing = self.fields.sample(self.fields.spacing, xy)[:, 0]
             moved = np.linalg.norm(xy - self.anchor, axis=1) > RECOMPUTE_DISTANCE * spacing
         computed, values, slopes = self.fields.nonuniform_denominators(xy[moved])
         computed = np.flatnonzero(moved)[computed]

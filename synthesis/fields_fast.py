@@ -1,7 +1,7 @@
 """Numba kernels of :mod:`synthesis.fields`: bilinear sampling of grids at points, and the Poisson denominator's polar quadrature (:meth:`synthesis.fields.MapFields.denominator_at`).
 
 Same sampling as the numpy reference (:meth:`MapFields._quadrature_reference`):
-bilinear intensity and latent with edge clamping, nodes outside the domain
+each node's pixel's intensity and density level, bilinear latent (edges clamped), nodes outside the domain
 count 0, guidance ``exp(-|dz|^2 / (2 bandwidth))``; tests compare the two.
 """
 
@@ -12,6 +12,15 @@ import math
 import numba
 import numpy as np
 
+LEVEL_DEAD_ZONE = 0.16  # differences of the guide's density level within this count 0 (see synthesis.fields.DENSITY_GUIDE)
+
+
+@numba.njit(cache=True)
+def guide_gap(d, c):  # pragma: no cover - jitted
+    """The guide's distance along coordinate c of a difference d: d itself for the latent z (c < 2), the density level's
+    (c = 2) beyond :data:`LEVEL_DEAD_ZONE`."""
+    return d if c < 2 else max(abs(d) - LEVEL_DEAD_ZONE, 0.0)
+
 
 @numba.njit(cache=True)
 def corners(height, width, x, y):  # pragma: no cover - jitted
@@ -21,14 +30,6 @@ def corners(height, width, x, y):  # pragma: no cover - jitted
     c0 = min(int(x), max(width - 2, 0))
     r0 = min(int(y), max(height - 2, 0))
     return r0, min(r0 + 1, height - 1), c0, min(c0 + 1, width - 1), x - c0, y - r0
-
-
-@numba.njit(cache=True)
-def _bilinear(plane, x, y):  # pragma: no cover - jitted
-    r0, r1, c0, c1, tx, ty = corners(plane.shape[0], plane.shape[1], x, y)
-    top = plane[r0, c0] * (1.0 - tx) + plane[r0, c1] * tx
-    bottom = plane[r1, c0] * (1.0 - tx) + plane[r1, c1] * tx
-    return top * (1.0 - ty) + bottom * ty
 
 
 @numba.njit(parallel=True, cache=True)
@@ -87,10 +88,40 @@ def border_shares(x, y, spacing, width, height, ring_radii):  # pragma: no cover
     return out
 
 
+@numba.njit(cache=True)
+def _bilinear(plane, x, y):  # pragma: no cover - jitted
+    r0, r1, c0, c1, tx, ty = corners(plane.shape[0], plane.shape[1], x, y)
+    top = plane[r0, c0] * (1.0 - tx) + plane[r0, c1] * tx
+    bottom = plane[r1, c0] * (1.0 - tx) + plane[r1, c1] * tx
+    return top * (1.0 - ty) + bottom * ty
+
+
+@numba.njit(cache=True)
+def _stepped_pair(first, second, step, stepped, x, y):  # pragma: no cover - jitted
+    """Samples of two (height, width) planes at pixel-index coordinates (x, y), edges clamped, from one stencil:
+    bilinear, or on a pixel marked in ``step`` (uint8, same shape; tested only where ``stepped``) that pixel's own values
+    (as :meth:`synthesis.fields.MapFields.snapped`)."""
+    height, width = first.shape
+    if stepped:
+        row = min(max(int(math.floor(y + 0.5)), 0), height - 1)
+        col = min(max(int(math.floor(x + 0.5)), 0), width - 1)
+        if step[row, col]:
+            return first[row, col], second[row, col]
+    r0, r1, c0, c1, tx, ty = corners(height, width, x, y)
+    a = (first[r0, c0] * (1.0 - tx) + first[r0, c1] * tx) * (1.0 - ty) + (first[r1, c0] * (1.0 - tx) + first[r1, c1] * tx) * ty
+    b = (second[r0, c0] * (1.0 - tx) + second[r0, c1] * tx) * (1.0 - ty) + (second[r1, c0] * (1.0 - tx) + second[r1, c1] * tx) * ty
+    return a, b
+
+
 @numba.njit(parallel=True, cache=True)
-def ring_means(intensity, latent_a, latent_b, px0, py0, spacing_px, centre_a, centre_b, own,
-               dx, dy, node_ring, rings, guide, bandwidth):  # pragma: no cover - jitted
-    """(k, R) mean over each ring's nodes of ``lambda(y) H(y, x) [y inside] / lambda(x)`` around k points (pixel-index coordinates)."""
+def ring_means(intensity, planes, step, px0, py0, spacing_px, centre, own,
+               dx, dy, node_ring, rings, guide, first, ends, stepped, bandwidth):  # pragma: no cover - jitted
+    """(k, R) mean over each ring's nodes of ``lambda(y) H(y, x) [y inside] / lambda(x)`` around k points (pixel-index
+    coordinates); the guide coordinates are (C, H, W) planes, (k, C) at the points; lambda and the last coordinate (the
+    density level) at a node are bilinear, a ``step`` pixel's own value on it (uint8 (H, W); (0, 0): no step), the
+    others bilinear (as :meth:`synthesis.fields.MapFields.guide_at`); around point i only coordinates ``first`` to
+    ``ends[i]`` are read (a one-colour map's z is the same everywhere; a level that stays within its dead zone gaps 0),
+    and ``step`` only where ``stepped[i]`` (a step pixel within reach)."""
     k = len(px0)
     height, width = intensity.shape
     out = np.zeros((k, rings))
@@ -98,19 +129,61 @@ def ring_means(intensity, latent_a, latent_b, px0, py0, spacing_px, centre_a, ce
     for q in range(len(node_ring)):
         counts[node_ring[q]] += 1.0
     for i in numba.prange(k):
+        if ends[i] <= 2 and not stepped[i]:  # bilinear lambda and at most z (most points)
+            for q in range(len(dx)):
+                x = px0[i] + spacing_px[i] * dx[q]
+                y = py0[i] + spacing_px[i] * dy[q]
+                if x < -0.5 or x > width - 0.5 or y < -0.5 or y > height - 0.5:
+                    continue
+                weight = _bilinear(intensity, x, y) / own[i]
+                if guide and first == 0:
+                    da = _bilinear(planes[0], x, y) - centre[i, 0]
+                    db = _bilinear(planes[1], x, y) - centre[i, 1]
+                    weight *= math.exp(-(da * da + db * db) / (2.0 * bandwidth))
+                out[i, node_ring[q]] += weight
+            continue
         for q in range(len(dx)):
             x = px0[i] + spacing_px[i] * dx[q]
             y = py0[i] + spacing_px[i] * dy[q]
             if x < -0.5 or x > width - 0.5 or y < -0.5 or y > height - 0.5:
                 continue
-            weight = _bilinear(intensity, x, y) / own[i]
+            lam, level = _stepped_pair(intensity, planes[2], step, stepped[i], x, y)
+            weight = lam / own[i]
             if guide:
-                da = _bilinear(latent_a, x, y) - centre_a[i]
-                db = _bilinear(latent_b, x, y) - centre_b[i]
-                weight *= math.exp(-(da * da + db * db) / (2.0 * bandwidth))
+                d2 = 0.0
+                for c in range(first, min(ends[i], 2)):  # the latent z: bilinear
+                    d = _bilinear(planes[c], x, y) - centre[i, c]
+                    d2 += d * d
+                if ends[i] > 2:
+                    d = guide_gap(level - centre[i, 2], 2)
+                    d2 += d * d
+                if d2 > 1e-20:  # exp rounds to 1.0 there anyway (a photograph's nodes, mostly: within the dead zone)
+                    weight *= math.exp(-d2 / (2.0 * bandwidth))
             out[i, node_ring[q]] += weight
     for r in range(rings):
         out[:, r] /= counts[r]
+    return out
+
+
+@numba.njit(cache=True)
+def _running_median(values, half, out):  # pragma: no cover - jitted
+    width = values.shape[1]
+    window = np.empty(2 * half + 1)
+    for i in range(values.shape[0]):
+        for j in range(width):
+            for k in range(2 * half + 1):
+                window[k] = values[i, min(max(j - half + k, 0), width - 1)]
+            window.sort()
+            out[i, j] = window[half]
+
+
+def running_median(values: np.ndarray, half: int) -> np.ndarray:
+    """(H, W) float64 the median of each row's ``2 half + 1`` values around each pixel of values (H, W), edges repeated:
+    ``scipy.ndimage.median_filter(values, size=(1, 2 half + 1), mode="nearest")`` (tests compare them), without
+    importing scipy.ndimage."""
+    values = np.ascontiguousarray(values, np.float64)
+    out = np.empty_like(values)
+    _running_median(values, int(half), out)
     return out
 
 

@@ -124,7 +124,8 @@ def test_field_sampling_and_guides_match_the_references():
     for table, grid in ((fields.target_table, fields.target), (fields.dispersion_table, fields.dispersion)):
         np.testing.assert_array_equal(sample_table(table, fields.colour, xy, fields.side_px),
                                       sample_grid_reference(grid, xy, fields.side_px))
-    latent = sample_grid(fields.latent, xy, fields.side_px).astype(np.float64)
+    latent = fields.guide_at(xy)  # split_map: a density edge too
+    assert np.ptp(latent[:, 2]) > 0.3  # beyond the dead zone (0.16)
     offsets, members, _ = CellGrid(xy, fields.domain, 0.05).query(xy, 0.1)
     rows = np.repeat(np.arange(len(xy)), np.diff(offsets))
     np.testing.assert_allclose(row_guides(latent, latent, offsets, members, GUIDE_BANDWIDTH),
@@ -375,7 +376,7 @@ def test_border_denominators_agree_with_the_quadrature():
     assert fields.flat[(xy[todo, 1] * fields.side_px).astype(int), (xy[todo, 0] * fields.side_px).astype(int)].all()
     at = xy[todo]
     spacing = sample_grid(fields.spacing, at, fields.side_px)[:, 0].astype(np.float64)
-    quadrature = fields._quadrature_reference(at, spacing, sample_grid(fields.latent, at, fields.side_px),
+    quadrature = fields._quadrature_reference(at, spacing, fields.guide_at(at),
                                               sample_grid(fields.intensity, at, fields.side_px)[:, 0]) * fields.exact_denominator
     # the closed form is the quadrature's limit: they differ by its node noise (8 nodes on the smallest rings)
     assert np.abs(values - quadrature).mean() < 0.01 * fields.exact_denominator.mean()
@@ -544,12 +545,13 @@ def test_edge_blur_fast_path_equals_the_reference():
 def test_image_filters_equal_scipy_ndimage():
     """The synthesis path's own filters (scipy.ndimage is not imported before a synthesis's first iteration) against
     scipy's: the tone term's Gaussian blur within 1e-13 and its tent filter within 1e-14 (rounding: another summation
-    order), the flatness test's max - min filter and the nearest-ink feature transform's distances exactly."""
+    order), the flatness test's max - min filter, the density level's running median and the nearest-ink feature
+    transform's distances exactly."""
     from scipy import ndimage
 
     from synthesis.density_term import TENT, _tent_filter
     from synthesis.fields import _window_spread
-    from synthesis.fields_fast import gaussian_blur, nearest_true
+    from synthesis.fields_fast import gaussian_blur, nearest_true, running_median
 
     rng = np.random.default_rng(11)
     for shape, sigma in [((102, 102), (3.0, 3.0)), ((7, 40), (2.5, 3.7)), ((1, 9), (3.0, 3.0)), ((30, 2), (0.6, 5.0))]:
@@ -562,6 +564,7 @@ def test_image_filters_equal_scipy_ndimage():
             size = 2 * half + 1
             spread = ndimage.maximum_filter(values, size, mode="nearest") - ndimage.minimum_filter(values, size, mode="nearest")
             np.testing.assert_array_equal(_window_spread(values, half), spread)
+            np.testing.assert_array_equal(running_median(values, half), ndimage.median_filter(values, (1, size), mode="nearest"))
     for shape, share in [((60, 80), 0.01), ((256, 256), 0.3), ((1, 100), 0.05), ((100, 1), 0.05), ((40, 40), 0.0)]:
         mask = rng.random(shape) < share
         mask.flat[7] = True
@@ -573,19 +576,25 @@ def test_image_filters_equal_scipy_ndimage():
 
 
 @pytest.mark.parametrize("extent", [1.0, 1.37])
-def test_stratified_cell_masses_are_the_density_sampled_at_the_cells(extent):
-    """The start's cell grid, computed per axis, against bilinear samples (``sample_grid``) at every cell's centre
-    inside the domain times its share there, on a map with ink, white and a thin strip of domain in the last cells."""
+def test_stratified_cell_masses_are_the_density_integrated_over_the_cells(extent):
+    """The start's cell grid (summed-area table) against a plain integral of the density, constant on each pixel, over
+    each cell's part inside the domain (per-axis overlaps of cells and pixels), on a map with ink, white, a sharp step
+    and a thin strip of domain in the last cells."""
     from synthesis.stratified import _cell_grid
 
     density = np.zeros((37, 50))
     density[5:30, 10:45] = np.linspace(0.1, 1.0, 35)
+    density[:, 20:23] = 0.9
     side_px, domain = 50, (1.0, 37 / 50)
     order, mass = _cell_grid(density, side_px, domain, 3000, extent)
     side = 1 << order
-    lo = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="xy"), axis=-1).reshape(-1, 2) / side * extent
-    hi = np.minimum(lo + extent / side, domain)
-    share = np.prod(np.clip(hi - lo, 0.0, None), axis=1) * (side / extent) ** 2
-    values = sample_grid(density[..., None], 0.5 * (lo + np.maximum(hi, lo)), side_px)[:, 0]
-    assert 0 < np.count_nonzero(share) < side * side  # cells beyond the domain: the comparison covers both kinds
-    np.testing.assert_array_equal(mass, (np.maximum(values, 0.0) * share).reshape(side, side))
+
+    def overlaps(size: int, length: float) -> np.ndarray:  # (side, size) length of cell k inside the domain in pixel j
+        lo = np.arange(side)[:, None] / side * extent
+        hi = np.minimum(lo + extent / side, length)
+        return np.clip(np.minimum(hi, (np.arange(size)[None] + 1) / side_px) - np.maximum(lo, np.arange(size)[None] / side_px),
+                       0.0, None)
+
+    integral = overlaps(37, domain[1]) @ density @ overlaps(50, domain[0]).T
+    assert 0 < np.count_nonzero(integral) < side * side  # cells beyond the domain: the comparison covers both kinds
+    np.testing.assert_allclose(mass, integral * (side / extent) ** 2, rtol=1e-9, atol=1e-9)
