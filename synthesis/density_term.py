@@ -69,7 +69,7 @@ import numpy as np
 
 from synthesis.fields import MapFields, _area_matrix
 from synthesis.fields_fast import edge_pass, gaussian_blur, gaussian_taps
-from synthesis.labmap import LabMap
+from synthesis.labmap import LabMap, pixels_of
 
 BLUR_CELLS = 3.0  # the blur's standard deviation in grid cells (cells of ``scale / 3`` mean spacings: a tent splat
 # blurred by 3 cells has no aliasing left to speak of, and coarser cells cost less: 1M points, 1000^2 cells)
@@ -187,10 +187,7 @@ class DensityTerm:
         """(n,) the points' regular shares in [0, 1]: those held (:meth:`hold_shares`), else their field pixels'."""
         if self.shares is not None and len(self.shares) == len(xy):
             return self.shares
-        height, width = self.regular_px.shape
-        rows = np.clip((np.asarray(xy)[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
-        cols = np.clip((np.asarray(xy)[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
-        return self.regular_px[rows, cols]
+        return self.regular_px[pixels_of(np.asarray(xy), self.regular_px.shape, self.side_px)]
 
     def _corners(self, xy: np.ndarray):
         gh, gw = self.shape

@@ -62,7 +62,7 @@ from synthesis.cells import CellGrid
 from synthesis.edgepcf_fast import (WINDOW_PARTS, cumulate, expected_window_sums, point_lists, point_terms, row_guides,
                                     sloped_window_sums, window_bounds, window_sums, window_totals, window_weights)
 from synthesis.fields import GUIDE_BANDWIDTH, DenominatorTracker, Denominators, MapFields, sample_grid, sample_table
-from synthesis.labmap import LabMap
+from synthesis.labmap import LabMap, pixels_of
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff
 from synthesis.stratified import StratifiedSampler
@@ -530,10 +530,8 @@ def spread_clusters(target: np.ndarray, radii: np.ndarray) -> np.ndarray:
 def spread_clusters_at(fields: MapFields, xy: np.ndarray) -> np.ndarray:
     """(n,) :func:`spread_clusters` of the target of the field pixel under each position xy (n, 2) (its colour's, not a
     bilinear blend: between red and blue pixels a blend has clusters and a trough, and neither side has both)."""
-    h, w = fields.colour.shape
-    cols = np.clip((xy[:, 0] * fields.side_px).astype(np.int64), 0, w - 1)
-    rows = np.clip((xy[:, 1] * fields.side_px).astype(np.int64), 0, h - 1)
-    return spread_clusters(fields.target_table.astype(np.float64), fields.radii)[fields.colour[rows, cols]]
+    colour = fields.colour[pixels_of(xy, fields.colour.shape, fields.side_px)]
+    return spread_clusters(fields.target_table.astype(np.float64), fields.radii)[colour]
 
 
 def structure(target: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from synthesis.errors import PatternshopError
-from synthesis.labmap import LabMap
+from synthesis.labmap import LabMap, pixels_of
 from synthesis.palette import Palette
 from synthesis.pcf import neighbour_cutoff, r_max, uniform_expectation
 
@@ -386,9 +386,7 @@ class MapFields:
         """
         xy = np.asarray(xy, np.float64)
         m = len(self.radii)
-        height, width, _ = self.intensity.shape
-        col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
-        row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
+        row, col = pixels_of(xy, self.intensity.shape[:2], self.side_px)
         todo = np.flatnonzero(~self.uniform[row, col])
         values, gradient = np.empty((len(todo), m)), np.zeros((len(todo), m, 2))
         if not len(todo):
@@ -460,9 +458,7 @@ class MapFields:
         u = self._quadrature[0]
         reach = (u.max() + SLOPE_STEP) * spacing * self.side_px + 2.0  # pixels: nodes, the unshifted point, bilinear support
         box = np.minimum(np.searchsorted(half, reach), len(half) - 1)
-        height, width = high.shape[1:]
-        col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
-        row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
+        row, col = pixels_of(xy, high.shape[1:], self.side_px)
         inside = reach <= half[box]
         flat = inside & (high[box, row, col] - level <= LEVEL_DEAD_ZONE) & (level - low[box, row, col] <= LEVEL_DEAD_ZONE)
         return np.where(flat, 2, 3).astype(np.int64), (~inside | steps[box, row, col]).astype(np.uint8)
@@ -577,9 +573,7 @@ class MapFields:
         "Density edges"), elsewhere they blend as before (a photograph's soft gradients)."""
         if self.step is None:
             return xy
-        height, width = self.step.shape
-        col = np.clip((xy[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
-        row = np.clip((xy[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
+        row, col = pixels_of(xy, self.step.shape, self.side_px)
         on = self.step[row, col]
         out = np.array(xy, np.float64)
         out[on, 0], out[on, 1] = (col[on] + 0.5) / self.side_px, (row[on] + 0.5) / self.side_px

@@ -168,10 +168,10 @@ def resample_map(lab_map: LabMap, shape: tuple[int, int]) -> LabMap:
     return LabMap(np.stack([resample_channel(lab_map.lab[..., c], shape) for c in range(3)], axis=-1))
 
 
-def pixels_of(xy: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def pixels_of(xy: np.ndarray, shape: tuple[int, int], side: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(row, col) int64 arrays (n,): the pixel of a map of ``shape`` (H, W) that each (n, 2) point in domain units
-    (long side 1, origin top-left) lies in, clipped to the map."""
-    side = max(shape)
+    (long side 1, origin top-left) lies in, clipped to the map; ``side``: pixels per domain unit (default max(shape))."""
+    side = max(shape) if side is None else side
     col = np.clip((xy[:, 0] * side).astype(np.int64), 0, shape[1] - 1)
     row = np.clip((xy[:, 1] * side).astype(np.int64), 0, shape[0] - 1)
     return row, col

@@ -16,6 +16,8 @@ from functools import lru_cache
 import numba
 import numpy as np
 
+from synthesis.labmap import pixels_of
+
 MAX_ORDER = 11  # at most 2048 x 2048 cells
 CELLS_PER_POINT = 4  # at the densest cell, at least this many cells per point where MAX_ORDER allows
 
@@ -152,13 +154,10 @@ class StratifiedSampler:
         one density draw nothing more (a map of one density keeps its random stream). A uniform jitter put the mass of
         the cell's dark part on its light part too: 1.25 of the expected density in the light side's first 0.5 r_max at
         a blue L 15 | L 76 edge (6 seeds; docs/synthesis.md, "Density edges")."""
-        height, width = self.density.shape
         xy = lo + rng.random(lo.shape) * extent
 
         def pixel(at: np.ndarray) -> np.ndarray:
-            col = np.clip((at[:, 0] * self.side_px).astype(np.int64), 0, width - 1)
-            row = np.clip((at[:, 1] * self.side_px).astype(np.int64), 0, height - 1)
-            return self.density[row, col]
+            return self.density[pixels_of(at, self.density.shape, self.side_px)]
 
         inner = np.maximum(extent * (1 - 1e-9), 0.0)
         corners = [pixel(lo + inner * corner) for corner in ((0, 0), (1, 0), (0, 1), (1, 1))]

@@ -471,8 +471,7 @@ def hold_in_ink_reference(xy: np.ndarray, first: np.ndarray, nearest: np.ndarray
     keeps them on ink (only the leash), and next to white a point's neighbours all lie on one side.
     """
     height, width, _ = nearest.shape
-    pixel = np.stack([np.clip((xy[:, 1] * side_px).astype(np.int64), 0, height - 1),
-                      np.clip((xy[:, 0] * side_px).astype(np.int64), 0, width - 1)], axis=1)
+    pixel = np.stack(pixels_of(xy, (height, width), side_px), axis=1)
     target = nearest[pixel[:, 0], pixel[:, 1]]
     off = np.flatnonzero((target != pixel).any(axis=1))
     lo = target[off, ::-1] / side_px  # (x, y) of the inked pixel's corner
