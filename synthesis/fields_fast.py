@@ -168,19 +168,39 @@ def ring_means(intensity, planes, step, px0, py0, spacing_px, centre, own,
 @numba.njit(cache=True)
 def _running_median(values, half, out):  # pragma: no cover - jitted
     width = values.shape[1]
-    window = np.empty(2 * half + 1)
+    size = 2 * half + 1
+    window = np.empty(size)  # the row's window around pixel j, sorted
     for i in range(values.shape[0]):
-        for j in range(width):
-            for k in range(2 * half + 1):
-                window[k] = values[i, min(max(j - half + k, 0), width - 1)]
-            window.sort()
+        for k in range(size):
+            window[k] = values[i, min(max(k - half, 0), width - 1)]
+        window.sort()
+        out[i, 0] = window[half]
+        for j in range(1, width):  # the window slides by one: one value leaves, one enters
+            gone = values[i, max(j - 1 - half, 0)]
+            new = values[i, min(j + half, width - 1)]
+            if new != gone:
+                k = 0
+                while k < size - 1 and window[k] != gone:  # bounded: a NaN is never found
+                    k += 1
+                if new > gone:  # the values between move down one place, the new one takes the gap
+                    while k + 1 < size and window[k + 1] < new:
+                        window[k] = window[k + 1]
+                        k += 1
+                else:
+                    while k > 0 and window[k - 1] > new:
+                        window[k] = window[k - 1]
+                        k -= 1
+                window[k] = new
             out[i, j] = window[half]
 
 
 def running_median(values: np.ndarray, half: int) -> np.ndarray:
     """(H, W) float64 the median of each row's ``2 half + 1`` values around each pixel of values (H, W), edges repeated:
     ``scipy.ndimage.median_filter(values, size=(1, 2 half + 1), mode="nearest")`` (tests compare them), without
-    importing scipy.ndimage."""
+    importing scipy.ndimage. The window is kept sorted as it slides (one value out, one in: a few moves a pixel, none
+    where they are equal, as on a map's flat areas) instead of sorted at every pixel (the logo's fields: 7.8 -> 0.3 ms
+    a pass; random values, 256^2 px, half 6: 22 -> 2 ms). Equal values are interchangeable (-0.0 and 0.0 may swap: they
+    compare equal); values with NaN (never here: logarithms of a positive intensity) give other medians than scipy's."""
     values = np.ascontiguousarray(values, np.float64)
     out = np.empty_like(values)
     _running_median(values, int(half), out)

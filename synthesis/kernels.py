@@ -4,7 +4,8 @@ The kernels are compiled with ``cache=True``: the first run in a fresh
 installation (or after a kernel's source changed, or with an empty
 ``NUMBA_CACHE_DIR``) compiles them, about 15 s of silence, and later runs load
 them in a fraction of a second. :func:`announce_compilation` prints one line on
-stderr before such a first run.
+stderr before such a first run; :func:`load_cached_kernels_lazily` loads them without numba's typing and lowering
+registries (0.1 s), which only compiling needs.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import types
 SYNTHESIS_KERNELS = ("synthesis.cells", "synthesis.edgepcf_fast", "synthesis.fields_fast", "synthesis.neighbour_term",
                      "synthesis.step_fast", "synthesis.stratified")
 _announced: set[str] = set()
+_KERNEL_PACKAGE = "synthesis."  # the kernels :func:`load_cached_kernels_lazily` loads without numba's registries
 
 
 def _cached(kernel: object) -> bool | None:
@@ -82,3 +84,43 @@ def skip_blas_check() -> None:
     finally:
         if sys.modules.get(name) is placeholder:
             del sys.modules[name]
+
+
+def load_cached_kernels_lazily() -> None:
+    """Load this package's cached kernels without numba's typing and lowering registries (about 0.1 s of start-up).
+
+    Before it loads a kernel from its on-disk cache, numba refreshes its target context: it imports and installs every
+    typing and lowering registry (numba.np.arraymath, the typed containers, random, linalg: some 2,000 registrations),
+    which only compiling needs; machine code loaded from the cache needs numba's runtime (NRT: the symbols its arrays
+    call). This replaces ``numba.core.caching.Cache.load_overload`` with one that initialises only the runtime for the
+    kernels of the ``synthesis`` package and does numba's own for every other function. A cache miss (a first run, an
+    edited kernel) calls :func:`skip_blas_check` and returns nothing: numba then compiles, and compiling refreshes the
+    registries itself (``numba.core.compiler``), so any kernel still compiles and runs afterwards. One registry module
+    also registers symbols at its import: ``numba.cpython.hashing``'s hash secret, for hashing strings, which no
+    synthesis kernel does (one that did would fail to load from the cache). Nothing is done where numba's internals
+    differ from those this was written against (numba 0.6x: ``Cache._load_overload``). The same points as numba's own
+    loading (``tests/test_startup.py::test_cached_kernels_load_without_numba_registries_and_give_the_same_points``).
+    """
+    try:
+        from numba.core import caching
+        from numba.core.runtime import rtsys
+    except ImportError:
+        return
+    original = getattr(caching.Cache, "load_overload", None)
+    if getattr(original, "lazy", False) or not all(hasattr(caching.Cache, name) for name in
+                                                    ("_load_overload", "_guard_against_spurious_io_errors")):
+        return
+
+    def load_overload(self, sig, target_context):  # noqa: ANN001, ANN202 - numba's own signature
+        module = getattr(getattr(self, "_py_func", None), "__module__", None) or ""
+        if not module.startswith(_KERNEL_PACKAGE):
+            return original(self, sig, target_context)
+        rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():  # as numba's own (Windows: another process's write)
+            loaded = self._load_overload(sig, target_context)
+        if loaded is None:
+            skip_blas_check()  # numba compiles next: its registries without scipy.linalg
+        return loaded
+
+    load_overload.lazy = True
+    caching.Cache.load_overload = load_overload

@@ -58,10 +58,12 @@ core and 180 keeps it (docs/synthesis.md, "Schedule measurements"): 0.72 of the 
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -300,50 +302,51 @@ def synthesize(
             converged) and a re-drawn region converges as in a full run, which takes as many iterations
             (fewer leave it less regular: see docs/synthesis.md, "Warm start"). The result keeps their order.
     """
-    import numba
+    with _collector_paused():  # the start-up's objects (numba, its kernels, the fields) are long-lived: see there
+        import numba
 
-    from synthesis.edgepcf import WindowSampler, find_neighbourhoods
-    from synthesis.density_term import DensityTerm
-    from synthesis.edgepcf_fast import FastObjective
-    from synthesis.kernels import announce_compilation, skip_blas_check
-    from synthesis.neighbour_term import NeighbourTerm
-    from synthesis.step_fast import hold_in_ink, momentum_step
-    from synthesis.stratified import spatial_order
+        from synthesis.edgepcf import WindowSampler, find_neighbourhoods
+        from synthesis.density_term import DensityTerm
+        from synthesis.edgepcf_fast import FastObjective
+        from synthesis.kernels import announce_compilation, load_cached_kernels_lazily
+        from synthesis.neighbour_term import NeighbourTerm
+        from synthesis.step_fast import hold_in_ink, momentum_step
+        from synthesis.stratified import spatial_order
 
-    start = time.perf_counter()
-    try:
-        plan = SCHEDULES[schedule] if isinstance(schedule, str) else schedule
-    except KeyError:
-        raise PatternshopError(f"unknown schedule {schedule!r}; choose one of: {', '.join(SCHEDULES)}") from None
-    if iterations is not None and iterations < 0:
-        raise PatternshopError(f"iterations must be >= 0, got {iterations}")
-    if start_points is not None:
-        start_points = checked_start_points(start_points, n, lab_map.domain)
-        n = len(start_points)
-    count = plan.iterations if iterations is None else iterations
-    n = point_count(lab_map) if n is None else n
-    if n < 2:
-        raise PatternshopError(f"need at least 2 points, got {n}")
-    skip_blas_check()
-    announce_compilation()
-    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    rng = np.random.default_rng(seed)
-    palette = palette or load_palette()
-    fields = MapFields.build(lab_map, n, palette, guide=guide)
-    tone = DensityTerm(lab_map, fields, plan.tone, plan.tone_scale) if plan.tone > 0 else None
-    nearest = NeighbourTerm(fields, plan.neighbours)
-    xy = initial_points(lab_map, n, rng, fields) if start_points is None else start_points
-    if fields.nearest_ink is not None:  # a start drawn across a pixel edge into the white
-        hold_in_ink_reference(xy, np.zeros_like(xy), fields.nearest_ink, fields.ink_side_px)
-    order = spatial_order(xy, fields.domain)  # points stay sorted in memory along a Hilbert curve while they move
-    xy = xy[order]
-    if tone is not None:
-        tone.hold_shares(xy)  # each point's regular share fixed for the run (density_term, "Correlation edges")
-    windows, denominators, workspace = WindowSampler(fields), DenominatorTracker(fields), Workspace()
-    start_xy = xy.copy()
-    first, second = np.zeros_like(xy), 0.0
-    beta1, beta2 = 0.9, 0.999
-    setup = time.perf_counter() - start
+        start = time.perf_counter()
+        try:
+            plan = SCHEDULES[schedule] if isinstance(schedule, str) else schedule
+        except KeyError:
+            raise PatternshopError(f"unknown schedule {schedule!r}; choose one of: {', '.join(SCHEDULES)}") from None
+        if iterations is not None and iterations < 0:
+            raise PatternshopError(f"iterations must be >= 0, got {iterations}")
+        if start_points is not None:
+            start_points = checked_start_points(start_points, n, lab_map.domain)
+            n = len(start_points)
+        count = plan.iterations if iterations is None else iterations
+        n = point_count(lab_map) if n is None else n
+        if n < 2:
+            raise PatternshopError(f"need at least 2 points, got {n}")
+        load_cached_kernels_lazily()
+        announce_compilation()
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        rng = np.random.default_rng(seed)
+        palette = palette or load_palette()
+        fields = MapFields.build(lab_map, n, palette, guide=guide)
+        tone = DensityTerm(lab_map, fields, plan.tone, plan.tone_scale) if plan.tone > 0 else None
+        nearest = NeighbourTerm(fields, plan.neighbours)
+        xy = initial_points(lab_map, n, rng, fields) if start_points is None else start_points
+        if fields.nearest_ink is not None:  # a start drawn across a pixel edge into the white
+            hold_in_ink_reference(xy, np.zeros_like(xy), fields.nearest_ink, fields.ink_side_px)
+        order = spatial_order(xy, fields.domain)  # points stay sorted in memory along a Hilbert curve while they move
+        xy = xy[order]
+        if tone is not None:
+            tone.hold_shares(xy)  # each point's regular share fixed for the run (density_term, "Correlation edges")
+        windows, denominators, workspace = WindowSampler(fields), DenominatorTracker(fields), Workspace()
+        start_xy = xy.copy()
+        first, second = np.zeros_like(xy), 0.0
+        beta1, beta2 = 0.9, 0.999
+        setup = time.perf_counter() - start
     losses: list[float] = []
     step_length = leash = None
     bar = _progress_bar(count, f"synthesis (n={n})") if progress else _NoBar()
@@ -393,6 +396,21 @@ def synthesize(
     return SynthesisResult(PointSet(points, fields.domain, points_per_ink=points_per_ink_of(lab_map, n)), plan.name, count,
                            time.perf_counter() - start, setup, losses, final,
                            absurd_run(losses[0] if losses else final, final, misplaced_share(lab_map, points)))
+
+
+@contextlib.contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off for the block, then as it was: a synthesis's start-up (numba's import, its
+    cached kernels, the fields and the start) allocates some 10^5 objects that live on, and the collections that walked
+    them took 30-70 ms of the 0.5 s to the first iteration (logo.tif, 10,000 points; issue 27). The iterations run with
+    it as the caller had it."""
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if collecting:
+            gc.enable()
 
 
 def border_steps(fields: MapFields, xy: np.ndarray, spacing: np.ndarray, freedom: np.ndarray) -> np.ndarray:

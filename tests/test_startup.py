@@ -5,6 +5,7 @@ Nothing here is timed: ``bench/bench_speed.py`` measures the start-up (its start
 
 from __future__ import annotations
 
+import os
 import pickle
 import subprocess
 import sys
@@ -142,6 +143,69 @@ def test_synthesis_imports_neither_scipy_ndimage_nor_scipy_linalg():
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split("\n")[-2] == "[] [] 3.0"
+
+
+def test_cached_kernels_load_without_numba_registries_and_give_the_same_points():
+    """The synthesis kernels load from numba's cache without its typing and lowering registries (numba.np.arraymath
+    and the rest: 0.1 s of start-up; :func:`synthesis.kernels.load_cached_kernels_lazily`): the same points as with
+    numba's own loading, on one thread and two, and a kernel compiled afterwards runs."""
+    code = ("import hashlib, sys\n"
+            "import numba\n"
+            "import numpy as np\n"
+            "import synthesis.kernels\n"
+            "if sys.argv[1] == 'numba':  # numba's own loading, as before\n"
+            "    synthesis.kernels.load_cached_kernels_lazily = synthesis.kernels.skip_blas_check\n"
+            "import patternshop as ps\n"
+            "seen = []\n"
+            "def progress(done, total, xy):\n"
+            "    seen.append('numba.np.arraymath' in sys.modules)\n"
+            "digest = hashlib.sha1()\n"
+            "for threads in (1, 2):\n"
+            f"    result = ps.synthesize({str(ROOT / 'examples' / 'logo.tif')!r}, points=300, iterations=3, threads=threads,"
+            " progress=progress)\n"
+            "    digest.update(result.points.xy.tobytes())\n"
+            "total = numba.njit(lambda a: np.sort(a)[-1] + a.sum())\n"
+            "print(seen[0], digest.hexdigest(), total(np.arange(4.0)))\n")
+    runs = {}
+    for way in ("lazy", "numba", "lazy"):  # the first run fills numba's cache where it is cold
+        result = subprocess.run([sys.executable, "-c", code, way], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                                env=os.environ | {"NUMBA_NUM_THREADS": "2"})
+        assert result.returncode == 0, result.stderr
+        runs[way] = result.stdout.split("\n")[-2].split()
+    assert runs["lazy"][0] == "False" and runs["numba"][0] == "True"  # the registries: not loaded / loaded
+    assert runs["lazy"][1:] == runs["numba"][1:] and runs["lazy"][2] == "9.0"
+
+
+def test_garbage_collector_is_off_for_the_start_up_only(monkeypatch):
+    """Python's cyclic collector is off while a synthesis starts (numba's import and kernels, the fields: 30-70 ms of
+    collections), on again for the iterations and after the call, after a failed start too; left off where the caller
+    had it off."""
+    import gc
+
+    from synthesis import synthesize as synthesis_module
+
+    seen = []
+    build = synthesis_module.MapFields.build
+    monkeypatch.setattr(synthesis_module.MapFields, "build",
+                        lambda *args, **kwargs: seen.append(("start", gc.isenabled())) or build(*args, **kwargs))
+    lab = np.zeros((32, 32, 3), np.float32)
+    lab[..., 0] = 50.0
+    lab[..., 1:] = Palette.load().preset_ab()["blue"]
+    assert gc.isenabled()
+    synthesis_module.synthesize(LabMap(lab), n=300, iterations=2,
+                                on_iteration=lambda done, xy: seen.append(("iteration", gc.isenabled())))
+    assert seen == [("start", False), ("iteration", True), ("iteration", True), ("iteration", True)] and gc.isenabled()
+    lab[..., 0] = 100.0  # white: the start fails
+    with pytest.raises(PatternshopError, match="white everywhere"):
+        synthesis_module.synthesize(LabMap(lab), n=300, iterations=2)
+    assert seen[-1] == ("start", False) and gc.isenabled()
+    gc.disable()
+    try:
+        lab[..., 0] = 50.0
+        synthesis_module.synthesize(LabMap(lab), n=300, iterations=1)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
 
 
 def test_infer_degeneracy_check_leaves_numba_unimported():

@@ -545,8 +545,8 @@ def test_edge_blur_fast_path_equals_the_reference():
 def test_image_filters_equal_scipy_ndimage():
     """The synthesis path's own filters (scipy.ndimage is not imported before a synthesis's first iteration) against
     scipy's: the tone term's Gaussian blur within 1e-13 and its tent filter within 1e-14 (rounding: another summation
-    order), the flatness test's max - min filter, the density level's running median and the nearest-ink feature
-    transform's distances exactly."""
+    order), the flatness test's max - min filter, the density level's running median (on values with ties and flat runs
+    too) and the nearest-ink feature transform's distances exactly."""
     from scipy import ndimage
 
     from synthesis.density_term import TENT, _tent_filter
@@ -565,6 +565,8 @@ def test_image_filters_equal_scipy_ndimage():
             spread = ndimage.maximum_filter(values, size, mode="nearest") - ndimage.minimum_filter(values, size, mode="nearest")
             np.testing.assert_array_equal(_window_spread(values, half), spread)
             np.testing.assert_array_equal(running_median(values, half), ndimage.median_filter(values, (1, size), mode="nearest"))
+            steps = np.round(values * 4) / 4  # ties and flat runs, as on a map's flat areas (the sliding window's shortcut)
+            np.testing.assert_array_equal(running_median(steps, half), ndimage.median_filter(steps, (1, size), mode="nearest"))
     for shape, share in [((60, 80), 0.01), ((256, 256), 0.3), ((1, 100), 0.05), ((100, 1), 0.05), ((40, 40), 0.0)]:
         mask = rng.random(shape) < share
         mask.flat[7] = True
