@@ -9,7 +9,8 @@ pair lists the objective already has, with bounds from the target's own nearest-
 exemplar's, in r_max; a preset's exemplar is its generator), ``lo_c`` and ``hi_c`` times the local spacing
 ``s_c`` at the point's refresh position:
 
-    L = (weight / n) [ barrier sum_c sum_{k in pairs(c)} max(min(lo_c s_c, lo_k s_k) - d_ck, 0)^2 / min(s_c, s_k)^2
+    L = (weight / n) [ sum_c sum_{k in pairs(c)} max(b_c, b_k) max(min(lo_c s_c, lo_k s_k) - d_ck, 0)^2
+                                                 / min(s_c, s_k)^2
                        + sum_c max(min_k d_ck / s_c - hi_c, 0)^2 ]
 
 A smooth barrier on every pair closer than both points' lower bounds (a hard core where the target has one: blue
@@ -22,6 +23,28 @@ It takes the smaller of the two points' reaches: with the larger (or both, summe
 photo's fine texture (a spacing 2-3 x its neighbours') pushed every neighbour within its own wide reach away, against
 the tone term (camera, 5,000 points, density PSNR at 2 spacings: 47.1 dB without the term, 44.8 with both reaches,
 47.7 with the smaller).
+
+**Stacking.** For a regular target the barrier reaches at least ``STACKING_FLOOR R`` and is stronger where its bound
+is low: ``lo_c`` is ``max(lo, STACKING_FLOOR R)`` and its strength ``b_c`` is :data:`BARRIER` x
+``max(1, R (STACKING_REACH / lo_c)^2)``, with ``R`` the regularity of the point's target
+(:func:`synthesis.edgepcf.regularity`: 1 - its mean PCF within 0.55 r_max, clipped to [0, 1]); each colour's values
+(:func:`colour_bounds`) are sampled bilinearly like the bounds. A stacked pair (d = 0) costs ``b lo^2`` (spacings^2),
+so, for a target whose bound is low, almost nothing. Step noise has a soft core (its PCF about 0.3 below 0.35 r_max,
+R = 0.67): 0.24 % of its generator's points have a neighbour within 0.05 r_max (the bench's stacked points; not a
+numerical artefact, its NN distances are spread as ``r^2`` from 0.01 r_max up), its bound is 0.066 r_max, and with
+``b = 1`` the synthesiser kept 0.15 % of its points stacked (constant map, 4,096 points, 4-12 points a seed over 6
+seeds). Stacked points are not what a user wants from a regular target; with ``b`` = 9.3 (bound 0.067) none are left
+and step's NN distances and fine PCF keep their generator's (min NN 0.039 -> 0.066 r_max, fine-PCF ratio 0.73 ->
+0.74). A regular colour whose exemplar itself has a few stacked points (a chroma between blue and red, at the edges of
+the logo's P: bound 0.009 r_max, R = 0.6) takes the floor's bound, 0.06 r_max (strength 10 instead of 500): a constant
+map of it kept 8-12 stacked points of 4,096 with its own bound, none with the floor. A target with a bound of
+STACKING_REACH sqrt(R) or more (blue 0.76, Lloyd 0.70, lattice 0.93 r_max) or without a short-range deficit (white,
+green, red, Matern: R = 0; their stacked pairs are their clusters', their generators' 3.7-4.2 %) keeps its bound and
+``b = 1``, bit for bit. A pair takes the larger of its points' strengths (symmetric: gathered per point as before).
+Tried (docs/synthesis.md, "Stacking"): ``BARRIER`` 10 for every target (green's and red's edge strips 1.30 / 1.32); a
+floor alone, 0.2 / 0.3 r_max x R (step stacked 0.0005 / 0, fine-PCF ratio 0.96 / 1.51); a floor of 0.06-0.07 r_max
+with the stronger barrier for every target (the logo's stacking 2.3 % -> 0, but green's fine-PCF ratio 1.04 -> 1.43-1.47
+and red's 1.27 -> 1.50-1.51).
 
 **Border.** A point closer to the domain's border than its upper bound is not pulled: part of the disc in which its
 nearest neighbour is expected lies outside, so its NN distance is not the torus exemplar's. Pulled there too, green's
@@ -48,11 +71,14 @@ import math
 import numba
 import numpy as np
 
+from synthesis.edgepcf import regularity
 from synthesis.edgepcf_fast import unsigned
-from synthesis.fields import MapFields, sample_grid
+from synthesis.fields import MapFields, sample_table
 
 BARRIER = 1.0  # the barrier's weight relative to the pull's
 BORDER_BAND = 1.0  # points closer to the border than this x their upper bound are not pulled (see "Border")
+STACKING_FLOOR = 0.1  # r_max x regularity: the least lower bound of a regular target's barrier (see "Stacking")
+STACKING_REACH = 0.25  # r_max: a regular target's stacked pair costs at least what it does under this bound (Stacking)
 SLACK = 0.5  # spacings x step factor: how far points may move between refreshes for the short pair lists (see "Cost")
 
 
@@ -66,21 +92,24 @@ class NeighbourTerm:
         self.fields = fields
         self.weight = float(weight)
         self.active = self.weight > 0 and fields.neighbour_bounds is not None
+        self.bounds = colour_bounds(fields) if self.active else None  # (K, 3) per colour (see "Stacking")
         self.clear()
 
     def clear(self) -> None:
         """Drop the last refresh's arrays (the synthesiser calls it before it builds new pair lists: peak memory)."""
         self.offsets = self.neighbours = self.lower = self.upper = self.spacing = self.nearest = self.pull = None
+        self.strength = None
 
     def refresh(self, offsets: np.ndarray, neighbours: np.ndarray, anchor: np.ndarray, spacing: np.ndarray,
                 freedom: np.ndarray | float = 1.0) -> None:
         """Take pair lists (``offsets`` (n + 1,), ``neighbours`` (P,), as :class:`synthesis.edgepcf.Neighbourhoods`)
-        and the bounds at the refresh positions ``anchor`` (n, 2) with local spacings ``spacing`` (n,) in map units;
-        keep the pairs within reach of the bounds (:func:`short_lists`, a slack of :data:`SLACK` x ``freedom`` (n,), the
-        points' step factor, spacings)."""
+        and the bounds and barrier strengths at the refresh positions ``anchor`` (n, 2) with local spacings ``spacing``
+        (n,) in map units; keep the pairs within reach of the bounds (:func:`short_lists`, a slack of :data:`SLACK` x
+        ``freedom`` (n,), the points' step factor, spacings)."""
         self.clear()  # the last refresh's arrays go before the new ones are built
-        bounds = sample_grid(self.fields.neighbour_bounds, anchor, self.fields.side_px).astype(np.float64)
+        bounds = sample_table(self.bounds, self.fields.colour, anchor, self.fields.side_px).astype(np.float64)
         self.spacing = np.asarray(spacing, np.float64)
+        self.strength = bounds[:, 2]
         self.lower = bounds[:, 0] * self.spacing  # map units
         upper = bounds[:, 1] * self.spacing
         self.offsets, self.neighbours, candidate = short_lists(anchor, offsets, neighbours, self.lower, upper,
@@ -97,7 +126,8 @@ class NeighbourTerm:
         n = len(xy)
         out = np.zeros((n, 2)) if gradient is None else gradient
         loss = _neighbour_pass(xy, unsigned(self.offsets), unsigned(self.neighbours), self.lower, self.upper,
-                               self.spacing, BARRIER * self.weight / n, self.weight / n, out, self.nearest, self.pull)
+                               self.spacing, self.strength * (self.weight / n), self.weight / n, out, self.nearest,
+                               self.pull)
         _scatter_pulls(xy, self.nearest, self.pull, out)
         return loss
 
@@ -109,11 +139,12 @@ class NeighbourTerm:
         others = self.neighbours.astype(np.int64)
         offset = xy[centres] - xy[others]
         distance = np.sqrt(np.sum(offset**2, axis=1))
-        barrier, pull = BARRIER * self.weight / n, self.weight / n
+        barrier = np.maximum(self.strength[centres], self.strength[others]) * (self.weight / n)  # per pair
+        pull = self.weight / n
         loss, slope = 0.0, np.zeros(len(distance))
         scale = np.minimum(self.spacing[centres], self.spacing[others])
         depth = np.maximum(np.minimum(self.lower[centres], self.lower[others]) - distance, 0.0) / scale  # spacings
-        loss += barrier * float(np.sum(depth**2))
+        loss += float(np.sum(barrier * depth**2))
         slope -= 4.0 * barrier * depth / scale  # dL/dd on the centre: its own and its neighbour's directed pair
         moving = distance > 0.0
         grad = np.zeros((n, 2))
@@ -132,6 +163,28 @@ class NeighbourTerm:
         np.add.at(grad, far, force)
         np.add.at(grad, first[far], -force)
         return loss, grad
+
+
+def barrier_strength(lower: np.ndarray, regularity: np.ndarray) -> np.ndarray:
+    """(...) the barrier's weight relative to the pull's for targets with lower bounds ``lower`` (..., r_max) and
+    regularities (...) in [0, 1] (:func:`synthesis.edgepcf.regularity`): :data:`BARRIER` x
+    ``max(1, regularity (STACKING_REACH / lower)^2)`` (see "Stacking"; BARRIER for a bound of at least
+    STACKING_REACH x sqrt(regularity) or a target without a short-range deficit)."""
+    reach = np.asarray(regularity, np.float64) * (STACKING_REACH / np.maximum(lower, 1e-6)) ** 2
+    return BARRIER * np.maximum(1.0, reach)
+
+
+def colour_bounds(fields: MapFields) -> np.ndarray:
+    """(K, 3) float32 for each of the map's K colours (``fields.target_table`` rows): the barrier's lower bound, the
+    colour's own (``fields.neighbour_bounds``) or :data:`STACKING_FLOOR` x its regularity if higher, and its upper
+    bound, in r_max, and the barrier's strength (:func:`barrier_strength`); :meth:`NeighbourTerm.refresh` samples them
+    bilinearly (:func:`synthesis.fields.sample_grid`'s values), so a point between two colours takes a blend of their
+    strengths, not the strength of a blend (see "Stacking")."""
+    bounds = np.zeros((len(fields.target_table), 2), np.float32)
+    bounds[fields.colour.ravel()] = fields.neighbour_bounds.reshape(-1, 2)  # per pixel, the colours' own bounds
+    regular = regularity(fields.target_table.astype(np.float64), fields.radii)
+    lower = np.maximum(bounds[:, 0], STACKING_FLOOR * regular)
+    return np.stack([lower, bounds[:, 1], barrier_strength(lower, regular)], axis=1).astype(np.float32)
 
 
 def short_lists(xy: np.ndarray, offsets: np.ndarray, neighbours: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -238,9 +291,10 @@ def _neighbour_pass(xy, offsets, neighbours, lower, upper, spacing, barrier, pul
                 d = math.sqrt(squared)
                 scale = min(spacing[c], spacing[k])
                 depth = (reach - d) / scale
-                own += depth * depth
+                weight = max(barrier[c], barrier[k])
+                own += weight * depth * depth
                 if d > 0.0:
-                    slope = -4.0 * barrier * depth / scale / d  # both directed pairs' share on c
+                    slope = -4.0 * weight * depth / scale / d  # both directed pairs' share on c
                     gx += slope * dx
                     gy += slope * dy
         nearest[c] = -1
@@ -256,7 +310,7 @@ def _neighbour_pass(xy, offsets, neighbours, lower, upper, spacing, barrier, pul
                 total += own_pull
         grad[c, 0] += gx
         grad[c, 1] += gy
-        total += barrier * own
+        total += own
     return total
 
 

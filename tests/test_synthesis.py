@@ -475,6 +475,43 @@ def test_neighbour_term_gradient_matches_finite_differences():
     assert_matches_finite_differences(term.reference, xy, gradient, [*close[:3], *pulled[:4]])
 
 
+def test_neighbour_barrier_is_stronger_only_for_a_regular_target_with_a_low_bound():
+    """Step (a soft core: its PCF about 0.3 at short range, bound 0.066 r_max) gets a barrier strength of
+    ``regularity (STACKING_REACH / lower)^2`` (about 10), every other preset :data:`BARRIER`; a regular colour whose
+    exemplar has stacked points (bound 0.009 r_max, regularity 0.6: a blue | red edge pixel of the logo) the floor's
+    bound and a strength like step's. A pair takes the larger of its points' strengths, alike in the kernel, the
+    reference and the finite differences (a step | red map)."""
+    from synthesis.neighbour_term import BARRIER, STACKING_FLOOR, NeighbourTerm, colour_bounds
+
+    palette = load_palette()
+    for name in palette.preset_ab():
+        fields = MapFields.build(preset_map(name), 500, palette)
+        (lower, upper, strength), = colour_bounds(fields)
+        assert upper == fields.neighbour_bounds[0, 0, 1]
+        own = fields.neighbour_bounds[0, 0, 0]
+        assert strength > 5 * BARRIER if name == "step" else (strength, lower) == (BARRIER, own), name
+    fields = MapFields.build(constant_map(50.0, 37.0, -22.67), 500, palette)
+    (lower, _, strength), = colour_bounds(fields)
+    assert fields.neighbour_bounds[0, 0, 0] < 0.01 < 0.05 < lower <= STACKING_FLOOR and strength < 20 * BARRIER
+    lab = np.zeros((40, 60, 3), np.float32)
+    lab[:, :30], lab[:, 30:] = (60.0, *palette.preset_ab()["step"]), (40.0, *palette.preset_ab()["red"])
+    fields = MapFields.build(LabMap(lab), 1200, palette)
+    xy = np.random.default_rng(8).random((1200, 2)) * fields.domain
+    xy[0], xy[2] = [0.25, 0.3], [0.495, 0.3]  # in the step half; where the strength falls towards red's
+    xy[1], xy[3] = xy[0] + [1e-3, 0.0], xy[2] + [1e-3, 0.0]  # close pairs: equal strengths, and unequal ones
+    hood = find_neighbourhoods(fields, xy)
+    term = NeighbourTerm(fields, 1e3)
+    term.refresh(hood.offsets, hood.neighbours, hood.anchor, hood.spacing)
+    assert term.strength[0] > 5 * BARRIER and term.strength[2] > term.strength[3] + 0.3
+    assert np.all(term.strength[xy[:, 0] > 0.55] == BARRIER)  # red
+    loss, gradient = term.reference(xy)
+    assert np.abs(gradient[[0, 1, 2, 3]]).max() > 0
+    added = np.zeros_like(xy)
+    assert term(xy, added) == pytest.approx(loss, rel=1e-12)
+    np.testing.assert_allclose(added, gradient, rtol=1e-9, atol=1e-12 * np.abs(gradient).max())
+    assert_matches_finite_differences(term.reference, xy, gradient, [0, 1, 2, 3])
+
+
 def test_white_target_keeps_the_independent_sample():
     lab_map = preset_map("white")
     result = synthesize(lab_map, n=800, seed=5, iterations=30)
