@@ -53,6 +53,9 @@ LEVEL_MEDIAN = 2.0  # the density level is the median over a square of +- this m
 # LEVEL_MEDIAN_PX pixels): a texture finer than that (a photograph's grass, a textured map) is no guide edge, a step stays
 # sharp; unfiltered, the level cost camera 0.9 dB of density PSNR at 1 spacing
 LEVEL_MEDIAN_PX = 6
+CORRELATION_STEP = 0.5  # a source pixel is on a sharp correlation edge where the guide H between its latent z and one
+# of its 8 neighbours' is below this; a field pixel over such a pixel keeps one source pixel's chroma instead of a blend
+# (:func:`_at_most`; docs/synthesis.md, "Outlines at correlation edges")
 
 
 def step_pixels(log_level: np.ndarray) -> np.ndarray | None:
@@ -64,6 +67,19 @@ def step_pixels(log_level: np.ndarray) -> np.ndarray | None:
     reach = math.log(STEP_RATIO)
     step = (around.max(0) - log_level > reach) | (log_level - around.min(0) > reach)
     return step if step.any() else None
+
+
+def correlation_step_pixels(latent: np.ndarray, bandwidth: float = GUIDE_BANDWIDTH) -> np.ndarray:
+    """(H, W) bool: pixels of an (H, W, 2) latent z whose guide H against one of their 8 neighbours' (edges repeated) is
+    below :data:`CORRELATION_STEP` (a sharp correlation edge: a blend of the two sides is neither side)."""
+    height, width, _ = latent.shape
+    padded = np.pad(np.asarray(latent, np.float64), ((1, 1), (1, 1), (0, 0)), mode="edge")
+    furthest = np.zeros((height, width))
+    for i in range(3):
+        for j in range(3):
+            gap = padded[i:i + height, j:j + width] - latent
+            np.maximum(furthest, gap[..., 0] ** 2 + gap[..., 1] ** 2, out=furthest)
+    return furthest > -2.0 * bandwidth * math.log(CORRELATION_STEP)
 
 
 def sample_grid(grid: np.ndarray, xy: np.ndarray, side_px: int, out: np.ndarray | None = None) -> np.ndarray:
@@ -117,13 +133,26 @@ def _area_matrix(old: int, new: int) -> np.ndarray:
 
 
 def _at_most(lab_map: LabMap, side: int) -> LabMap:
-    """The map area-averaged so its longer side has at most ``side`` pixels (same domain)."""
+    """The map area-averaged so its longer side has at most ``side`` pixels (same domain), except the chroma of a pixel
+    over a sharp correlation edge (a source pixel of it on a :func:`correlation_step_pixels`): there it is its largest
+    source pixel's. A blend of red and blue is neither: the logo's 384 px resampled to 256 had 812 pixels of 311
+    blended colours along its edges, each with a palette PCF of its own (short-range level 0.3-2.9; blue's 0, red's 4.3)
+    and guided weakly against both sides (docs/synthesis.md, "Outlines at correlation edges")."""
     longest = max(lab_map.width, lab_map.height)
     if longest <= side:
         return lab_map
     rows = _area_matrix(lab_map.height, max(1, round(lab_map.height * side / longest)))
     cols = _area_matrix(lab_map.width, max(1, round(lab_map.width * side / longest)))
-    lab = np.einsum("ih,hwc,jw->ijc", rows, np.asarray(lab_map.lab, np.float64), cols, optimize=True)
+    source = np.asarray(lab_map.lab, np.float64)
+    lab = np.einsum("ih,hwc,jw->ijc", rows, source, cols, optimize=True)
+    spread = (np.ptp(source[..., 1]) ** 2 + np.ptp(source[..., 2]) ** 2) / 255.0**2  # no edge in a map of one colour
+    if spread <= -2.0 * GUIDE_BANDWIDTH * math.log(CORRELATION_STEP):  # (a photograph: the same arrays, nothing read)
+        return LabMap(lab.astype(np.float32))
+    edge = correlation_step_pixels((source[..., 1:] + 128.0) / 255.0).astype(np.float64)
+    across = ((rows > 0) @ edge @ (cols > 0).T) > 0
+    if across.any():
+        largest = source[np.argmax(rows, axis=1)][:, np.argmax(cols, axis=1), 1:]  # each pixel's largest source pixel's
+        lab[across, 1:] = largest[across]
     return LabMap(lab.astype(np.float32))
 
 

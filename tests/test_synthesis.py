@@ -113,6 +113,27 @@ def test_a_density_step_is_a_guide_edge_and_each_point_takes_its_pixels_fields()
     assert guide_similarity(guide[0], guide[2]) == 1.0 and guide_similarity(guide[1], guide[3]) == 1.0
 
 
+def test_fields_of_a_large_map_keep_each_side_of_a_correlation_edge():
+    """A 384 px map (a red disc at L 15 on blue at L 76, as the logo's P) resampled to the fields' 256 px: each field
+    pixel is red or blue, never a blend of the two (area-averaged, the logo's edges had 812 pixels of 311 blended colours,
+    each with a palette PCF of its own), while the density stays area-averaged across the edge and a smooth chroma
+    gradient stays averaged (docs/synthesis.md, "Outlines at correlation edges")."""
+    presets = load_palette().preset_ab()
+    y, x = (np.mgrid[0:384, 0:384] + 0.5) / 384
+    disc = np.hypot(x - 0.5, y - 0.5) < 0.3
+    lab = np.zeros((384, 384, 3), np.float32)
+    lab[..., 0] = np.where(disc, 15.0, 76.0)
+    lab[..., 1:] = np.where(disc[..., None], presets["red"], presets["blue"])
+    fields = MapFields.build(LabMap(lab), 5000, load_palette())
+    assert fields.colour.shape == (256, 256) and len(fields.target_table) == 2
+    intensity = fields.intensity[..., 0] / fields.intensity.max()  # 1 on red, 0.28 on blue
+    assert np.sum((intensity > 0.4) & (intensity < 0.9)) > 100  # the edge's pixels: their ink, averaged
+    lab[..., 1] = 20.0 + 10.0 * x  # a smooth gradient of chroma a (no correlation edge away from the disc): averaged
+    fields = MapFields.build(LabMap(lab), 5000, load_palette())
+    assert np.allclose(fields.latent[0, :, 0] * 255.0 - 128.0, 20.0 + 10.0 * (np.arange(256) + 0.5) / 256, atol=5e-3)  # its largest
+    # source pixel: up to 0.013 off
+
+
 def test_a_texture_finer_than_the_spacing_is_no_density_step():
     """Pixel noise between L 15 and L 76 (neighbouring pixels up to 3.5x apart) is a texture finer than the points'
     spacing, not an edge: the density level's median leaves no step pixel (on the raw pixels most would be one) and no
