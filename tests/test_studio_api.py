@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import http.client
 import io
 import json
 import os
@@ -639,7 +640,7 @@ def _call_once(url: str, path: str, body: dict) -> None:
                                      headers={"X-Patternshop-Token": token, "Content-Type": "application/json"})
     try:
         urllib.request.urlopen(request, timeout=20).read()
-    except (OSError, urllib.error.URLError):
+    except (OSError, urllib.error.URLError, http.client.HTTPException):  # the server died mid-answer
         pass
 
 
