@@ -56,30 +56,33 @@ LEVEL_MEDIAN_PX = 6
 CORRELATION_STEP = 0.5  # a source pixel is on a sharp correlation edge where the guide H between its latent z and one
 # of its 8 neighbours' is below this; a field pixel over such a pixel keeps one source pixel's chroma instead of a blend
 # (:func:`_at_most`; docs/synthesis.md, "Outlines at correlation edges")
+CORRELATION_REACH = math.sqrt(-2.0 * GUIDE_BANDWIDTH * math.log(CORRELATION_STEP))  # latent distance where H = that
+
+
+def neighbour_gap(values: np.ndarray) -> np.ndarray:
+    """(H, W) the largest Euclidean distance between an (H, W, C) array's values at a pixel and at one of its 8
+    neighbours (edges repeated), in the values' units and dtype."""
+    height, width = values.shape[:2]
+    padded = np.pad(values, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    largest = np.zeros((height, width), values.dtype)
+    for i in range(3):
+        for j in range(3):
+            gap = padded[i:i + height, j:j + width] - values
+            np.maximum(largest, np.sqrt(np.sum(gap * gap, axis=-1)), out=largest)
+    return largest
 
 
 def step_pixels(log_level: np.ndarray) -> np.ndarray | None:
     """(H, W) bool: pixels of an (H, W) log intensity whose value and one of their 8 neighbours' (edges repeated) differ
     by more than ln :data:`STEP_RATIO` (a density step: a sharp edge of the map, not a soft gradient); None if none is."""
-    height, width = log_level.shape
-    padded = np.pad(log_level, 1, mode="edge")
-    around = np.stack([padded[i:i + height, j:j + width] for i in range(3) for j in range(3)])
-    reach = math.log(STEP_RATIO)
-    step = (around.max(0) - log_level > reach) | (log_level - around.min(0) > reach)
+    step = neighbour_gap(log_level[..., None]) > math.log(STEP_RATIO)
     return step if step.any() else None
 
 
-def correlation_step_pixels(latent: np.ndarray, bandwidth: float = GUIDE_BANDWIDTH) -> np.ndarray:
+def correlation_step_pixels(latent: np.ndarray) -> np.ndarray:
     """(H, W) bool: pixels of an (H, W, 2) latent z whose guide H against one of their 8 neighbours' (edges repeated) is
     below :data:`CORRELATION_STEP` (a sharp correlation edge: a blend of the two sides is neither side)."""
-    height, width, _ = latent.shape
-    padded = np.pad(np.asarray(latent, np.float64), ((1, 1), (1, 1), (0, 0)), mode="edge")
-    furthest = np.zeros((height, width))
-    for i in range(3):
-        for j in range(3):
-            gap = padded[i:i + height, j:j + width] - latent
-            np.maximum(furthest, gap[..., 0] ** 2 + gap[..., 1] ** 2, out=furthest)
-    return furthest > -2.0 * bandwidth * math.log(CORRELATION_STEP)
+    return neighbour_gap(latent) > CORRELATION_REACH
 
 
 def sample_grid(grid: np.ndarray, xy: np.ndarray, side_px: int, out: np.ndarray | None = None) -> np.ndarray:
@@ -145,10 +148,10 @@ def _at_most(lab_map: LabMap, side: int) -> LabMap:
     cols = _area_matrix(lab_map.width, max(1, round(lab_map.width * side / longest)))
     source = np.asarray(lab_map.lab, np.float64)
     lab = np.einsum("ih,hwc,jw->ijc", rows, source, cols, optimize=True)
-    spread = (np.ptp(source[..., 1]) ** 2 + np.ptp(source[..., 2]) ** 2) / 255.0**2  # no edge in a map of one colour
-    if spread <= -2.0 * GUIDE_BANDWIDTH * math.log(CORRELATION_STEP):  # (a photograph: the same arrays, nothing read)
+    latent = np.asarray(lab_map.latent(), np.float64)
+    if math.hypot(*np.ptp(latent.reshape(-1, 2), axis=0)) <= CORRELATION_REACH:  # one colour (a photograph): no edge
         return LabMap(lab.astype(np.float32))
-    edge = correlation_step_pixels((source[..., 1:] + 128.0) / 255.0).astype(np.float64)
+    edge = correlation_step_pixels(latent).astype(np.float64)
     across = ((rows > 0) @ edge @ (cols > 0).T) > 0
     if across.any():
         largest = source[np.argmax(rows, axis=1)][:, np.argmax(cols, axis=1), 1:]  # each pixel's largest source pixel's
