@@ -244,8 +244,8 @@ class MapFields:
         guide: whether the guidance term is used (False on a one-colour map, where it is 1 everywhere).
         nearest_ink: (H', W', 2) int32 or None, see :func:`nearest_ink` (None: ink everywhere) ...
         ink_side_px: ... its pixels per map unit.
-        neighbour_bounds: (H, W, 2) float32 the target's nearest-neighbour distances in r_max, lower and upper bound
-            (:meth:`synthesis.palette.Palette.neighbour_bounds_at_latent`; None: not built).
+        neighbour_table: (C, 2) float32 each colour's target's nearest-neighbour distances in r_max, lower and upper
+            bound (:meth:`synthesis.palette.Palette.neighbour_bounds_at_latent`; None: not built).
     """
 
     domain: tuple[float, float]
@@ -264,7 +264,7 @@ class MapFields:
     guide: bool = True
     nearest_ink: np.ndarray | None = None
     ink_side_px: int = 1
-    neighbour_bounds: np.ndarray | None = None
+    neighbour_table: np.ndarray | None = None
     guide_z: np.ndarray | None = None
     step: np.ndarray | None = None
 
@@ -318,7 +318,7 @@ class MapFields:
             # are skipped (the same values: 100k points, 0.1-0.15 s of a run)
             uniform=np.empty(0, bool), flat=np.empty(0, bool), radii=radii,
             guide=guide and (len(keys) > 1 or not np.ptp(level) <= LEVEL_DEAD_ZONE), nearest_ink=nearest,
-            ink_side_px=ink_side_px, neighbour_bounds=palette.neighbour_bounds_at_latent(colours)[pixel_colour],
+            ink_side_px=ink_side_px, neighbour_table=palette.neighbour_bounds_at_latent(colours).astype(np.float32),
             guide_z=guide_z, step=step_pixels(log_level),
         )
         flat, uniform = fields._flat_pixels()

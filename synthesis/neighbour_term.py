@@ -91,7 +91,7 @@ class NeighbourTerm:
     def __init__(self, fields: MapFields, weight: float):
         self.fields = fields
         self.weight = float(weight)
-        self.active = self.weight > 0 and fields.neighbour_bounds is not None
+        self.active = self.weight > 0 and fields.neighbour_table is not None
         self.bounds = colour_bounds(fields) if self.active else None  # (K, 3) per colour (see "Stacking")
         self.clear()
 
@@ -176,12 +176,11 @@ def barrier_strength(lower: np.ndarray, regularity: np.ndarray) -> np.ndarray:
 
 def colour_bounds(fields: MapFields) -> np.ndarray:
     """(K, 3) float32 for each of the map's K colours (``fields.target_table`` rows): the barrier's lower bound, the
-    colour's own (``fields.neighbour_bounds``) or :data:`STACKING_FLOOR` x its regularity if higher, and its upper
+    colour's own (``fields.neighbour_table``) or :data:`STACKING_FLOOR` x its regularity if higher, and its upper
     bound, in r_max, and the barrier's strength (:func:`barrier_strength`); :meth:`NeighbourTerm.refresh` samples them
     bilinearly (:func:`synthesis.fields.sample_grid`'s values), so a point between two colours takes a blend of their
     strengths, not the strength of a blend (see "Stacking")."""
-    bounds = np.zeros((len(fields.target_table), 2), np.float32)
-    bounds[fields.colour.ravel()] = fields.neighbour_bounds.reshape(-1, 2)  # per pixel, the colours' own bounds
+    bounds = fields.neighbour_table
     regular = regularity(fields.target_table.astype(np.float64), fields.radii)
     lower = np.maximum(bounds[:, 0], STACKING_FLOOR * regular)
     return np.stack([lower, bounds[:, 1], barrier_strength(lower, regular)], axis=1).astype(np.float32)

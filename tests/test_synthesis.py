@@ -508,12 +508,12 @@ def test_neighbour_barrier_is_stronger_only_for_a_regular_target_with_a_low_boun
     for name in palette.preset_ab():
         fields = MapFields.build(preset_map(name), 500, palette)
         (lower, upper, strength), = colour_bounds(fields)
-        assert upper == fields.neighbour_bounds[0, 0, 1]
-        own = fields.neighbour_bounds[0, 0, 0]
+        assert upper == fields.neighbour_table[fields.colour[0, 0], 1]
+        own = fields.neighbour_table[fields.colour[0, 0], 0]
         assert strength > 5 * BARRIER if name == "step" else (strength, lower) == (BARRIER, own), name
     fields = MapFields.build(constant_map(50.0, 37.0, -22.67), 500, palette)
     (lower, _, strength), = colour_bounds(fields)
-    assert fields.neighbour_bounds[0, 0, 0] < 0.01 < 0.05 < lower <= STACKING_FLOOR and strength < 20 * BARRIER
+    assert fields.neighbour_table[fields.colour[0, 0], 0] < 0.01 < 0.05 < lower <= STACKING_FLOOR and strength < 20 * BARRIER
     lab = np.zeros((40, 60, 3), np.float32)
     lab[:, :30], lab[:, 30:] = (60.0, *palette.preset_ab()["step"]), (40.0, *palette.preset_ab()["red"])
     fields = MapFields.build(LabMap(lab), 1200, palette)
