@@ -9,6 +9,8 @@ in one request (an object store replaces an object at once, never partly).
 Code that reads and writes local paths only (the point and map readers and writers) reaches URLs through
 :func:`local_copies` (remote inputs downloaded into a temporary folder) and :func:`local_target` (an output
 written locally, then uploaded with :func:`write_atomic`); local paths go through both unchanged, at no cost.
+universal_pathlib (with fsspec, 40 ms to import) is imported only for text that may be a URL (:data:`MAYBE_URL`):
+a local ``convert`` does not import it in its calling process nor in its workers.
 """
 
 from __future__ import annotations
@@ -16,31 +18,45 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import re
+import sys
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
-
-from upath import UPath
+from typing import TYPE_CHECKING, BinaryIO, Union
 
 from synthesis.atomic import atomic_path
 
+if TYPE_CHECKING:
+    from upath import UPath
+
 LOCAL_PROTOCOLS = ("", "file", "local")
-StoragePath = Path | UPath  # what as_path returns
+StoragePath = Union[Path, "UPath"]  # what as_path returns
+# what universal_pathlib may read as a URL: a scheme of two or more characters and a slash, or a chain (a::b); any
+# other text is a local path to it as well, so it becomes a Path without importing it (fsspec's 40 ms at start-up)
+MAYBE_URL = re.compile(r"[A-Za-z][A-Za-z0-9+.-]+:/|.*::")
+
+
+def _is_upath(path: object) -> bool:
+    """Whether ``path`` is a :class:`UPath` (none is before :func:`as_path` has imported universal_pathlib)."""
+    upath = sys.modules.get("upath")
+    return upath is not None and isinstance(path, upath.UPath)
 
 
 def as_path(location: str | os.PathLike) -> StoragePath:
     """A local location (a path or a ``file://`` URL) as a :class:`pathlib.Path`, any other URL as a :class:`UPath`."""
-    if isinstance(location, Path) and not isinstance(location, UPath):
-        return location
+    if not _is_upath(location) and (isinstance(location, Path) or not MAYBE_URL.match(os.fspath(location))):
+        return location if isinstance(location, Path) else Path(location)
+    from upath import UPath
+
     path = location if isinstance(location, UPath) else UPath(location)
     return Path(path.path) if path.protocol in LOCAL_PROTOCOLS else path
 
 
 def is_local(path: StoragePath) -> bool:
     """Whether ``path`` (from :func:`as_path`) is on this machine's file system."""
-    return not isinstance(path, UPath) or path.protocol in LOCAL_PROTOCOLS
+    return not _is_upath(path) or path.protocol in LOCAL_PROTOCOLS
 
 
 def write_atomic(target: str | os.PathLike, write: Callable[[BinaryIO], None]) -> None:
@@ -115,4 +131,4 @@ def local_target(target: str | os.PathLike | UPath) -> Iterator[Path]:
 
 def in_process(path: StoragePath) -> bool:
     """Whether ``path``'s file system lives in this process only (``memory://``): other processes see it empty."""
-    return isinstance(path, UPath) and path.protocol == "memory"
+    return _is_upath(path) and path.protocol == "memory"

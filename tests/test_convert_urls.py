@@ -8,6 +8,8 @@ that); the multi-process cases use ``file://``. tests/test_distributed.py runs U
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +24,8 @@ from patternshop_nn.onnx_export import export_onnx
 from synthesis.labmap import LabMap
 from synthesis.mapio import write_channels, write_tiff
 from synthesis.points import PointSet, read_points, write_points
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
@@ -137,3 +141,15 @@ def test_convert_api_errors(tmp_path):
         ps.convert(tmp_path / "empty", tmp_path / "out", resynthesize=True, model="x.onnx")
     with pytest.raises(ps.PatternshopError, match="workers"):
         ps.convert(tmp_path / "empty", tmp_path / "out", workers=0)
+
+
+def test_local_paths_leave_universal_pathlib_unimported():
+    """A local run does not import universal_pathlib (fsspec's 40 ms at start-up); text it may read as a URL still
+    goes through it, and gives what it gave before (file: URLs local, memory: ones not)."""
+    code = ("import sys\n"
+            "from data_gen.storage import as_path, in_process, is_local\n"
+            "local = [as_path(text) for text in ('a/b', './c', 'C:/d', 'memory:e', 's3:f/g', '')]\n"
+            "print(all(is_local(p) and not in_process(p) for p in local), [str(p) for p in local], 'upath' in sys.modules)\n"
+            "print(as_path('file:///tmp/x'), is_local(as_path('memory:/y')), in_process(as_path('memory://y')), 'upath' in sys.modules)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert result.stdout.splitlines() == ["True ['a/b', 'c', 'C:/d', 'memory:e', 's3:f/g', '.'] False", "/tmp/x False True True"]
