@@ -9,7 +9,7 @@ on two workers).
    model load included), median of ``--repeats``.
 3. **convert**: ``patternshop convert IN OUT --workers 2 --threads 1`` over ``--files`` point files in a fresh
    process (start-up included), files per second: ``--convert-repeats`` runs per model, the models interleaved
-   (v5, the next model, v5 ...), each run with the 1-minute load average after it. Besides, the CPU seconds one
+   (the shipped model, the next model, the shipped model ...), each run with the 1-minute load average after it. Besides, the CPU seconds one
    worker spends per file (:func:`export.convert.convert_points` in this process over the same files, warmed up),
    split into reading the point file, :func:`export.runtime.infer_map` (of which the network passes, the
    degeneracy check, the smoothing of a model with ``l_scale``, the water-filling, and the rest) and writing the
@@ -44,7 +44,7 @@ from common import median_seconds, save_results  # bench/ is on sys.path when ru
 from data_gen.stipplers import METHODS
 from export.evidence import pattern_scale
 from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES
-from export.runtime import DEFAULT_MODEL, OnnxModel, V5_SYMMETRIES, infer_map
+from export.runtime import DEFAULT_MODEL, OnnxModel, infer_map
 from patternshop_nn.ood import picture_density, points_per_ink_of
 from synthesis.mapio import write_map
 from synthesis.points import PointSet, read_points, write_points
@@ -114,7 +114,7 @@ def command_seconds(arguments: list[str], repeats: int) -> list[float]:
 def model_results(path: Path, inputs: list[Path], convert_dir: Path, tmp: Path, repeats: int, quick: bool) -> dict:
     model = OnnxModel(path, threads=1)
     counts = (DEFAULT_INFER.symmetries, DEFAULT_INFER.convert_symmetries) if quick else SYMMETRY_CHOICES
-    default = DEFAULT_INFER.symmetries if model.has_l_scale else V5_SYMMETRIES
+    default = DEFAULT_INFER.symmetries
     rows = {f"{source.stem} x{s}": in_process(model, source, s, repeats, tmp / "map.tif")
             for source in inputs for s in sorted({*counts, default})}
     command = command_seconds(["infer", str(inputs[0]), str(tmp / "cli.tif"), "--threads", "1", "--model", str(path)], repeats)

@@ -17,8 +17,7 @@ caller to report. Outputs are written atomically, named after the input
   one core, of which the network 0.10-0.11 s, the smoothing 0.034 s, the
   degeneracy check 0.011-0.016 s, reading 0.013 s, writing 0.008 s, the
   water-filling 0.008 s (``bench/bench_infer.py``, section 3); a
-  model without it three or more times (the pattern, the two resamplings of the
-  denoising, light areas' zooms). N workers on N idle cores go about N times as
+  model without it the same, less the smoothing. N workers on N idle cores go about N times as
   fast as one, once started (about 0.5 s of one core each: imports, the ONNX session).
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
@@ -217,7 +216,7 @@ class _InferenceSettings:
     bits: int
     memory_limit: float  # bytes one process may use for one file
     symmetries: int  # readings averaged per file (export.runtime.predict_symmetric)
-    denoise: bool  # L smoothed (export.runtime.infer_map; without l_scale two more readings per file)
+    denoise: bool  # L smoothed within l_scale (export.runtime.infer_map; a model without it: never)
     config: InferConfig  # the constants around the network
 
 
@@ -288,8 +287,8 @@ def convert_points(sources: Sequence[PathLike], out_dir: PathLike, model: OnnxMo
         memory_limit: bytes all workers together may use; a file whose estimate exceeds its worker's share fails.
         symmetries: readings averaged per file (:func:`export.runtime.predict_symmetric`), one network pass
             each; None: ``config.convert_symmetries`` (1, for throughput).
-        denoise: smooth L as ``infer`` does (a model without ``l_scale``: two more readings per file, about
-            twice the time); False keeps the detail.
+        denoise: smooth L within its predicted uncertainty as ``infer`` does (a model without ``l_scale``:
+            never); False keeps the detail.
         scheduler: see :func:`_executor`.
         config: the constants around the network (:class:`export.infer_config.InferConfig`).
     """

@@ -1,4 +1,4 @@
-"""What a pattern's own local density tells ``infer``: the scale to read it at, and where correlation is not observable.
+"""What a pattern's own points tell ``infer``: the scale to read it at and the ink the map must hold.
 
 Two measurements on the points alone, before and after the network:
 
@@ -14,41 +14,7 @@ Two measurements on the points alone, before and after the network:
    x quantile``, so that quantile reads as full ink; otherwise at the default,
    so ``infer`` then ``synthesize`` keeps the point count (the four constants are
    :class:`export.infer_config.InferConfig`'s, with the measurements that set them).
-2. **Evidence for correlation** (:func:`local_evidence`). Correlation is a
-   property of neighbourhoods: where a neighbourhood holds few points, no
-   estimator sees it (below density 0.05-0.1 the network alone gives the
-   same colour to every process). The evidence at a map pixel is the
-   number of points within :data:`EVIDENCE_RADIUS_PX` pixels of the network's
-   raster (a Gaussian window of the same area); it is *thin* below
-   :data:`MIN_EVIDENCE_POINTS` (at the default model's 8,000 points per ink on
-   256 px: density below about 0.1) and *empty* below
-   :data:`EMPTY_EVIDENCE_POINTS`.
-   :func:`fill_thin_correlation` replaces a, b where the evidence is thin by
-   a normalised convolution (Knutsson and Westin 1993) of the well-observed
-   a, b around it, widening the kernel until every such pixel has well-observed
-   neighbours; L is never changed. A pixel without ink (density below
-   :data:`INKED_DENSITY`) counts as unobserved too, whatever its window holds:
-   its a, b only echoes the points around it (next to a half-empty pattern's
-   edge, a zoomed reading sees that edge as a cluster's border and would paint
-   the empty half red; filled, it takes the inked half's colour).
-3. **Zoomed correlation** (:func:`correlation_zoom`). Correlation is a
-   property of the pattern in units of its own spacing, density is not: a
-   light area read as if the pattern held ``f`` times fewer points per ink
-   shows the network the same arrangement at ``f`` times the density. Where
-   the map's density is below :data:`WORK_DENSITY` (the density range where
-   the network names the stationary processes right, ``bench/ood_*.md``), a, b
-   come from such zoomed readings, ``f`` up to :data:`MAX_ZOOM`
-   (:func:`export.runtime.infer_map`); their evidence is counted at the zoomed
-   raster's scale, so thin means thin at the best zoom. Readings come at
-   zooms 1, 2, 4 ... and a pixel blends the two around its zoom, so it never
-   mixes in a reading at under half or over twice :data:`WORK_DENSITY`: the
-   default network names all five stationary processes right at apparent
-   densities 0.3-1.2 (measured with seed 7, not the evaluation's seed), while
-   jitter read below 0.3 drifts towards step (zooms 1, 4, 16 around 0.4 would
-   mix in readings at 0.1). A pixel is zoomed as the densest pixel
-   within :data:`ZOOM_NEIGHBOURHOOD_PX` of it, so the light side of a density
-   edge is read at the dark side's scale.
-4. **Ink the points hold** (:func:`calibrate_density`). The pattern holds
+2. **Ink the points hold** (:func:`calibrate_density`). The pattern holds
    ``n`` points, so the map's mean density must be ``n / (points_per_ink w h)``
    (``synthesize``'s count): one factor over the network's ink restores it,
    water-filled under full ink. No points, no ink: the network cannot invent
@@ -63,23 +29,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, maximum_filter
+from scipy.ndimage import gaussian_filter
 
 from export.infer_config import DEFAULT_INFER, InferConfig
 from synthesis.conventions import POINTS_PER_INK
-from synthesis.labmap import LabMap
 from synthesis.points import PointSet
-
-EVIDENCE_RADIUS_PX = 12.0  # neighbourhood of the correlation evidence, in pixels of the network raster
-MIN_EVIDENCE_POINTS = 6.0  # fewer points in it: correlation is not observable (thin)
-EMPTY_EVIDENCE_POINTS = 0.5  # fewer: no points at all near the pixel (empty)
-FILL_SIGMAS_PX = (4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)  # normalised-convolution kernels tried, map pixels
-FILL_MIN_WEIGHT = 0.02  # mean confidence under a kernel needed to fill from it
-INKED_DENSITY = 0.01  # below this density a pixel's own a, b does not count (no pattern there to read); fully from twice it
-WORK_DENSITY = 0.6  # correlation is read where the apparent density reaches this (the default network is reliable at 0.3-1.2)
-ZOOM_STEP = 2  # zoomed readings at f = 2, 4, ... 64, so a blend of two never reads below WORK_DENSITY / 2 or above twice it
-MAX_ZOOM = 64  # at most this zoom (a raster 8 times smaller)
-ZOOM_NEIGHBOURHOOD_PX = 4  # map pixels: a pixel is zoomed as the densest pixel this near
 
 
 @dataclass(frozen=True)
@@ -150,129 +104,6 @@ def choose_points_per_ink(points: PointSet, default: float, config: InferConfig 
     quantile = float(np.quantile(local_density(points, default, config), config.scale_quantile))
     scale = default * quantile if quantile > config.scale_threshold else default
     return ScaleChoice(scale, True, quantile, quantile=config.scale_quantile)
-
-
-def local_evidence(points: PointSet, shape: tuple[int, int], raster_pixels_per_unit: float) -> np.ndarray:
-    """(H, W) expected number of points within :data:`EVIDENCE_RADIUS_PX` raster pixels of each map pixel.
-
-    ``shape`` is the map's (H, W) over ``points.domain``; ``raster_pixels_per_unit`` the network raster's
-    pixels per unit of the domain (:func:`export.runtime.raster_scale`). A Gaussian window of the disc's area;
-    near the border, the count in its part inside the domain scaled to the whole window (so a light area
-    reads thin, not a corner of a well-observed one).
-    """
-    height, width = shape
-    w, h = points.domain
-    pixel = w / width
-    counts, _, _ = np.histogram2d(points.xy[:, 1], points.xy[:, 0], bins=(height, width), range=((0, height * pixel), (0, w)))
-    radius = EVIDENCE_RADIUS_PX / raster_pixels_per_unit / pixel  # map pixels
-    sigma = radius / math.sqrt(2.0)  # 2 pi sigma^2 = pi r^2
-    inside = gaussian_filter(np.ones((height, width)), sigma, mode="constant")
-    return gaussian_filter(counts, sigma, mode="constant") / np.maximum(inside, 1e-9) * (2.0 * math.pi * sigma * sigma)
-
-
-@dataclass(frozen=True)
-class EvidenceSummary:
-    """Shares of a map's pixels by their correlation evidence (:func:`local_evidence`), each in [0, 1].
-
-    Attributes:
-        thin_share: some points near the pixel, but fewer than :data:`MIN_EVIDENCE_POINTS`.
-        empty_share: no points near it (fewer than :data:`EMPTY_EVIDENCE_POINTS`).
-        filled: whether a, b of these pixels were filled from their surroundings.
-        fill_source: False when no pixel of the map had enough evidence to fill from.
-    """
-
-    thin_share: float
-    empty_share: float
-    filled: bool
-    fill_source: bool
-
-    def report(self) -> dict:
-        return {"thin_evidence_share": round(self.thin_share, 4), "empty_share": round(self.empty_share, 4),
-                "min_evidence_points": MIN_EVIDENCE_POINTS, "evidence_radius_raster_px": EVIDENCE_RADIUS_PX,
-                "filled_from_surroundings": self.filled, "well_observed_area": self.fill_source}
-
-
-def confidence(evidence: np.ndarray) -> np.ndarray:
-    """Weight in [0, 1] of the network's a, b: 0 below :data:`MIN_EVIDENCE_POINTS`, 1 from twice that, linear between."""
-    return np.clip(np.asarray(evidence, np.float64) / MIN_EVIDENCE_POINTS - 1.0, 0.0, 1.0)
-
-
-def ink_weight(density: np.ndarray) -> np.ndarray:
-    """Weight in [0, 1] of a pixel's own a, b by its density (H, W) in [0, 1]: 0 below :data:`INKED_DENSITY`, 1 from
-    twice that, linear between. An area without ink has no pattern to read: its a, b only echoes the points around it."""
-    return np.clip(np.asarray(density, np.float64) / INKED_DENSITY - 1.0, 0.0, 1.0)
-
-
-def fill_thin_correlation(lab_map: LabMap, evidence: np.ndarray) -> tuple[LabMap, bool]:
-    """(map with a, b blended towards the surrounding well-observed a, b, whether any source existed).
-
-    ``a, b <- c a, b + (1 - c) NC(a, b)`` with ``c`` = :func:`confidence` of the evidence times :func:`ink_weight`
-    (the evidence's alone when no pixel reaches :data:`INKED_DENSITY`: a map that light has no inked area to
-    fill from) and ``NC`` the normalised convolution ``G * (c ab) / G * c`` at the smallest kernel of
-    :data:`FILL_SIGMAS_PX` whose mean confidence reaches :data:`FILL_MIN_WEIGHT` at the pixel. Without a
-    well-observed pixel the map is returned unchanged.
-    """
-    observed = confidence(evidence)
-    weight = observed * ink_weight(lab_map.density())
-    if not weight.any():
-        weight = observed
-    if not weight.any():
-        return lab_map, False
-    ab = lab_map.ab.astype(np.float64)
-    filled = ab.copy()
-    pending = weight < 1.0
-    for sigma in FILL_SIGMAS_PX:
-        if not pending.any():
-            break
-        denominator = gaussian_filter(weight, sigma, mode="constant", truncate=3.0)
-        ready = pending & (denominator >= FILL_MIN_WEIGHT)
-        if ready.any():
-            for channel in range(2):
-                numerator = gaussian_filter(weight * ab[..., channel], sigma, mode="constant", truncate=3.0)
-                filled[..., channel][ready] = numerator[ready] / denominator[ready]
-            pending &= ~ready
-    blended = weight[..., None] * ab + (1.0 - weight[..., None]) * filled
-    return LabMap(np.concatenate([lab_map.lab[..., :1], blended.astype(np.float32)], axis=-1)), True
-
-
-def summarise(evidence: np.ndarray, filled: bool, fill_source: bool) -> EvidenceSummary:
-    """Shares of thin and empty pixels of an evidence map (H, W)."""
-    empty = evidence < EMPTY_EVIDENCE_POINTS
-    thin = ~empty & (evidence < MIN_EVIDENCE_POINTS)
-    return EvidenceSummary(float(thin.mean()), float(empty.mean()), filled, fill_source)
-
-
-def correlation_zoom(density: np.ndarray) -> np.ndarray:
-    """(H, W) zoom ``f`` in [1, MAX_ZOOM] at which each pixel's density (H, W) in [0, 1] reads as :data:`WORK_DENSITY`.
-
-    A pixel's density is taken as the densest within :data:`ZOOM_NEIGHBOURHOOD_PX` of it, so a light pixel next to
-    a dark area is read at the dark area's scale: zoomed, such a density edge looks like a cluster's border.
-    """
-    local = maximum_filter(np.asarray(density, np.float64), size=2 * ZOOM_NEIGHBOURHOOD_PX + 1, mode="nearest")
-    return np.clip(WORK_DENSITY / np.maximum(local, WORK_DENSITY / MAX_ZOOM), 1.0, MAX_ZOOM)
-
-
-def zoom_levels(zoom: np.ndarray) -> tuple[int, ...]:
-    """The zoomed readings needed for a zoom map: 1, ZOOM_STEP, ZOOM_STEP^2 ... up to the largest zoom wanted."""
-    largest = float(np.max(zoom)) if np.size(zoom) else 1.0
-    levels = [1]
-    while levels[-1] < largest - 1e-9 and levels[-1] < MAX_ZOOM:
-        levels.append(levels[-1] * ZOOM_STEP)
-    return tuple(levels)
-
-
-def blend_zoomed(zoom: np.ndarray, levels: tuple[int, ...], readings: list[np.ndarray]) -> np.ndarray:
-    """(H, W, ...) per-pixel interpolation in log zoom between the readings (each (H, W, ...)) at ``levels``."""
-    if len(levels) == 1:
-        return readings[0]
-    position = np.clip(np.log(zoom) / math.log(ZOOM_STEP), 0.0, len(levels) - 1.0)  # 0 at zoom 1, 1 at ZOOM_STEP ...
-    lower = np.minimum(np.floor(position).astype(int), len(levels) - 2)
-    upper_weight = position - lower
-    stack = np.stack(readings)  # (levels, H, W, ...)
-    rows, cols = np.indices(zoom.shape)
-    low, high = stack[lower, rows, cols], stack[lower + 1, rows, cols]
-    weight = upper_weight.reshape(upper_weight.shape + (1,) * (stack.ndim - 3))
-    return (1.0 - weight) * low + weight * high
 
 
 def calibrate_density(density: np.ndarray, mean_density: float) -> tuple[np.ndarray, float]:

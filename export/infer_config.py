@@ -2,9 +2,8 @@
 
 ``infer``, ``convert``, :mod:`patternshop.api` and the studio read :data:`DEFAULT_INFER`; pass another
 :class:`InferConfig` to :func:`export.runtime.infer_map` to try a change. Each field's docstring line names
-the measurement that set it. The stages of models without an ``l_scale`` output (v5 and earlier: zoomed
-correlation, sharpening, the bootstrap's readings) keep their own constants in :mod:`export.evidence`,
-:mod:`export.density` and :mod:`export.runtime`, and go with those stages.
+the measurement that set it. A model without an ``l_scale`` output reads the same way with the smoothing
+left out (no uncertainty to smooth within).
 """
 
 from __future__ import annotations
@@ -30,21 +29,20 @@ class InferConfig:
         border_px: raster pixels of the pattern mirrored beyond each side of the domain. Without it v2 darkened a
             rim along the border (it learnt the synthesiser's thinner borders, commit e1baa63); 32 is half the
             U-Net's 64-px cell, not tuned further.
-        symmetries: readings averaged per map by ``infer`` for a model with an ``l_scale`` output (one network pass
-            each). The most that fit 1 s per 20,000-point map on one thread (``bench/bench_infer.py``, v6b: ``infer_map``
+        symmetries: readings averaged per map by ``infer`` (one network pass each; a model without ``l_scale``
+            too). The most that fit 1 s per 20,000-point map on one thread (``bench/bench_infer.py``, v6b: ``infer_map``
             0.28-0.29 s at 2, load 1-2; 0.58-0.76 s at 2 and 1.04-1.41 s at 4, load 2-5; the command takes about 0.9 s
             more to start); on the 12 development stipplings 2 give most of what
             4 give (interim v6b epoch 0, k 0.5: mean SSIM 0.597, 0.599, 0.600 at 1, 2, 4; MAE 5.56, 5.53, 5.52).
         convert_symmetries: the same for ``convert``, whose target is 10 files/s on two workers: one pass per file.
         smoothing_tolerance: k of :func:`export.uncertainty.smooth_by_uncertainty`: a pixel takes a Gaussian
             smoothing while the change it makes stays within k times the predicted Laplace scale of its density.
-            Chosen on the 12 development stipplings (``bench/bench_uncertainty.py --tolerances``: the four
-            development pictures of ``patternshop_nn.ood`` by its three stipplers, seed 1000) with v6b's last epoch
-            (epoch 6), 2 symmetries: mean SSIM 0.568 unsmoothed, 0.593, 0.604, 0.609, 0.607 at k 0.15, 0.25, 0.35,
-            0.5; MAE 5.36, 5.28, 5.25, 5.26, 5.32; better than the oracle KDE in SSIM and MAE in 3, 5, 6, 6, 7 of 12:
-            0.35, the best SSIM within 0.02 of the best MAE. The same bench's flat-area bound is 0.74 (b overstates
-            the calibrated density's error on stationary patterns 1.2-7 times). The best k moved with training
-            (epoch 4: 0.25; epoch 0: 0.5): re-measure it for each model.
+            Chosen for the shipped model (v10) on the 12 development stipplings (``bench/bench_uncertainty.py
+            --tolerances 0.15,0.25,0.35,0.5 --cases``: the four development pictures of ``patternshop_nn.ood`` by
+            its three stipplers, seed 1000; 2 symmetries): mean SSIM 0.616 unsmoothed, 0.638, 0.644, 0.640, 0.629 at
+            k 0.15, 0.25, 0.35, 0.5; MAE 4.90, 4.84, 4.83, 4.88, 5.07; better than the oracle KDE in SSIM and MAE in
+            7, 8, 10, 8, 7 of 12: 0.25, the best SSIM within 0.02 of the best MAE (both at 0.25). The best k moves
+            with training (v6b 0.35, v9b 0.25, v9 0.35; docs/network.md): re-measure it for each model.
         smoothing_start_px: the first smoothing level's Gaussian (map px); each next level doubles it. On 256-px
             maps a 1-16 px KDE is the best one for the evaluation's stipplings (``patternshop_nn.ood``, oracle
             bandwidths), so the ladder spans them.
@@ -52,12 +50,12 @@ class InferConfig:
         smoothing_window: a level's change is measured in Gaussian windows this many times its width ...
         smoothing_min_window_px: ... and never narrower: a narrower window's average is too noisy an estimate and
             leaves specks unsmoothed (both chosen for v5's denoising on the four development pictures, of 2-4 and
-            3-12 px, MODEL_CARD.md).
+            3-12 px, docs/history/model-v5.md).
         smoothing_window_truncate: the windows of :func:`export.uncertainty.smooth_by_uncertainty` are Gaussians cut at
             this many sigmas: as averages they need no tails, and at 2 instead of scipy's 4 the smoothing took 81 ms
             instead of 134 ms per 256-px map (cProfile of ``convert_points`` on 18 files, load 5-6).
         smoothing_softness: a level fades in over +- this share of its threshold, so neighbouring pixels that take
-            different levels meet without a seam (v5's denoising, MODEL_CARD.md; not tuned).
+            different levels meet without a seam (v5's denoising, docs/history/model-v5.md; not tuned).
     """
 
     scale_cell_points: float = 16.0
@@ -67,7 +65,7 @@ class InferConfig:
     border_px: int = 32
     symmetries: int = 2
     convert_symmetries: int = 1
-    smoothing_tolerance: float = 0.35
+    smoothing_tolerance: float = 0.25
     smoothing_start_px: float = 1.0
     smoothing_max_fraction: float = 1.0 / 16
     smoothing_window: float = 2.0

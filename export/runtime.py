@@ -32,21 +32,13 @@
 
 :func:`infer_map` is what ``infer`` runs: the same reading, with the scale
 chosen from the pattern's own local density unless given (:mod:`export.evidence`),
-and the ink scaled so that the map holds the pattern's point count. Then:
+and the ink scaled so that the map holds the pattern's point count: one network
+pass per symmetry. A model with an ``l_scale`` output (its predicted uncertainty
+of L) then gets L smoothed within that uncertainty (:func:`smooth_reading`,
+:mod:`export.uncertainty`); a model without it (older exports, models trained
+with ``l_scale=false``) gets nothing more: its L is not smoothed.
 
-* a model with an ``l_scale`` output (its predicted uncertainty of L) gets
-  L smoothed within that uncertainty (:func:`smooth_reading`,
-  :mod:`export.uncertainty`): one network pass per symmetry, nothing else;
-* a model without it (v5 and earlier) gets :func:`read_v5_stages`: L
-  sharpened from the points where they are regular and smoothed where its
-  detail is no more than the noise of two Poisson resamplings of the map shows
-  (:mod:`export.density`, :func:`refine_density`); the correlation of light
-  areas read again at a zoom (as if the pattern held 2, 4 ... 64 times fewer
-  points per ink, so the network sees them at a density it reads correlation
-  at); and a, b filled from the surroundings where even then too few points
-  show correlation.
-
-Every constant of the first path is :class:`export.infer_config.InferConfig`'s.
+Every constant of this path is :class:`export.infer_config.InferConfig`'s.
 """
 
 from __future__ import annotations
@@ -62,9 +54,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 
-from export.density import REGULAR_NOISE_SHARE, denoise_density, poisson_resample, sharpen_density
-from export.evidence import (EvidenceSummary, ScaleChoice, blend_zoomed, calibrate_density, choose_points_per_ink, correlation_zoom,
-                             fill_thin_correlation, local_evidence, summarise, zoom_levels)
+from export.evidence import ScaleChoice, calibrate_density, choose_points_per_ink
 from export.infer_config import DEFAULT_INFER, SYMMETRY_CHOICES, InferConfig
 from export.uncertainty import smooth_by_uncertainty
 from synthesis.conventions import full_ink_points
@@ -78,9 +68,6 @@ INPUT_NAME = "raster"
 OUTPUT_NAME = "map"
 L_SCALE_NAME = "l_scale"  # the optional second output: (B, 1, H, W) predicted Laplace scale of the density (0..1)
 SIZE_MULTIPLE = 64  # raster sides must be multiples of 2**levels of the U-Net (6 levels)
-# Models without l_scale (v5 and earlier) only; these go with read_v5_stages:
-BOOTSTRAP_SEED = 0  # the Poisson resamplings of :func:`bootstrap_noise` (infer is deterministic)
-V5_SYMMETRIES = 8  # infer's readings per map for them: the model card's figures were measured at 8 (4 overstates the noise)
 
 PathLike = str | os.PathLike
 
@@ -98,7 +85,7 @@ class OnnxModel:
         raster_size: the training rasters' side (256); :meth:`predict` takes any multiple of 64.
         threads: ONNX Runtime intra-op threads.
         has_l_scale: the model predicts the Laplace scale of its density (output ``l_scale``): ``infer`` then
-            smooths L by it (:func:`export.uncertainty.smooth_by_uncertainty`) instead of :func:`read_v5_stages`.
+            smooths L by it (:func:`export.uncertainty.smooth_by_uncertainty`); without it L is not smoothed.
 
     Raises:
         PatternshopError: the file is missing, unreadable, or not a Patternshop model.
@@ -256,45 +243,35 @@ def points_to_map(points: PointSet, model: OnnxModel, width: int | None = None,
     pattern's own scale (the synthesiser's convention). Warns (:class:`PatternshopWarning`) when the pattern
     holds more points than that.
     """
-    return infer_map(points, model, width, ScaleChoice(points_per_ink, False), fill_thin=False, calibrate=False,
-                     symmetries=1).lab_map
+    return infer_map(points, model, width, ScaleChoice(points_per_ink, False), calibrate=False, symmetries=1).lab_map
 
 
 @dataclass(frozen=True)
 class Inference:
-    """What :func:`infer_map` made: the map, the scale it read the pattern at, and the correlation evidence.
+    """What :func:`infer_map` made: the map and the scale it read the pattern at.
 
-    ``output`` is the network's raw output over the domain (3, hR, wR) in [0, 1] of the main reading,
-    ``pixels_per_unit`` its raster's pixels per unit of the domain (R). ``evidence`` summarises where too few
-    points show correlation (None for a model with ``l_scale``, which reads thin areas itself). ``zooms`` are the
-    readings made for correlation (1: the main one only), ``zoomed_share``
-    the share of the map whose a, b came from a zoomed reading, ``calibration`` the ink factor applied
-    (None: the network's L as it came), ``symmetries`` how many symmetries each reading averaged,
-    ``sharpened_share`` the share of L taken from the points rather than the network, ``denoised_px`` the
-    mean width (px) of the smoothing L took where its detail was noise (:mod:`export.density`) or within its
-    predicted uncertainty (:mod:`export.uncertainty`); ``l_scale`` (H, W) that prediction, the Laplace scale of
-    the map's density in density units (times the ink factor), None for a model without it.
+    ``output`` is the network's raw output over the domain (3, hR, wR) in [0, 1] of the reading,
+    ``pixels_per_unit`` its raster's pixels per unit of the domain (R), ``calibration`` the ink factor applied
+    (None: the network's L as it came), ``symmetries`` how many symmetries the reading averaged, ``denoised_px``
+    the mean width (px) of the smoothing L took within its predicted uncertainty (:mod:`export.uncertainty`; 0
+    for a model without ``l_scale``); ``l_scale`` (H, W) that prediction, the Laplace scale of the map's density
+    in density units (times the ink factor), None for a model without it.
     """
 
     lab_map: LabMap
     scale: ScaleChoice
-    evidence: EvidenceSummary | None
     output: np.ndarray
     pixels_per_unit: float
-    zooms: tuple[int, ...] = (1,)
-    zoomed_share: float = 0.0
     calibration: float | None = None
     symmetries: int = 1
-    sharpened_share: float = 0.0
     denoised_px: float = 0.0
     l_scale: np.ndarray | None = None
 
     def report(self) -> dict:
         return {"width": self.lab_map.width, "height": self.lab_map.height, "symmetries": self.symmetries,
-                **self.scale.report(), **(self.evidence.report() if self.evidence is not None else {}),
-                "correlation_zooms": list(self.zooms), "zoomed_share": round(self.zoomed_share, 4),
+                **self.scale.report(),
                 "ink_calibration_factor": None if self.calibration is None else round(self.calibration, 4),
-                "sharpened_share": round(self.sharpened_share, 4), "denoised_px": round(self.denoised_px, 3),
+                "denoised_px": round(self.denoised_px, 3),
                 "l_scale_mean": None if self.l_scale is None else round(float(self.l_scale.mean()), 5)}
 
 
@@ -357,90 +334,9 @@ def smooth_reading(reading: Inference, density: np.ndarray, l_scale: np.ndarray,
     return replace(reading, lab_map=with_density(reading.lab_map, smoothed), denoised_px=float(width.mean()), l_scale=l_scale)
 
 
-# --- models without l_scale (v5 and earlier): zoomed correlation, thin fill, sharpening, bootstrap denoising ----------
-def bootstrap_noise(points: PointSet, model: OnnxModel, density: np.ndarray, points_per_ink: float, symmetries: int,
-                    config: InferConfig = DEFAULT_INFER) -> np.ndarray:
-    """(H, W) a sample of the noise in the network's calibrated density of a pattern, its ``density`` (H, W)
-    in [0, 1] at ``points_per_ink``: the difference of two readings of Poisson resamplings of that density
-    (:func:`export.density.poisson_resample`, seed :data:`BOOTSTRAP_SEED`), over sqrt(2). A parametric
-    bootstrap: it holds the noise a Poisson pattern of this density shows through the network, with its
-    amplitude and its grain."""
-    shape = density.shape
-    px_per_unit = shape[1] / points.domain[0]
-    rng = np.random.default_rng(BOOTSTRAP_SEED)
-    readings = []
-    for _ in range(2):
-        xy = poisson_resample(density, full_ink_points(points_per_ink, points.domain) / density.size, rng) / px_per_unit
-        resampled = PointSet(np.minimum(xy, np.asarray(points.domain)), points.domain)
-        lab_map = read_pattern(resampled, model, points_per_ink, shape, symmetries, config.border_px)[0]
-        readings.append(calibrate_density(lab_map.density(), len(resampled) / full_ink_points(points_per_ink, points.domain))[0])
-    return (readings[0] - readings[1]) / math.sqrt(2.0)
-
-
-def refine_density(points: PointSet, model: OnnxModel, density: np.ndarray, points_per_ink: float, sharpen: bool,
-                   denoise: bool, symmetries: int, config: InferConfig = DEFAULT_INFER) -> tuple[np.ndarray, float, float]:
-    """(density (H, W), share sharpened, mean smoothing width in px) of the network's calibrated ``density``
-    (H, W) in [0, 1] of ``points`` at ``points_per_ink``, with the ink restored.
-
-    ``denoise``: the network's density is smoothed where its detail is what a Poisson pattern's noise
-    would give (:func:`export.density.denoise_density`, the noise from :func:`bootstrap_noise`).
-    ``sharpen``: then taken from the points where they are regular
-    (:func:`export.density.sharpen_density`), and that part smoothed where its detail is what
-    :data:`export.density.REGULAR_NOISE_SHARE` of that noise would give.
-    """
-    ink = len(points) / full_ink_points(points_per_ink, points.domain)
-    refined, width, weight = density, np.zeros(density.shape), np.zeros(density.shape)
-    if denoise:
-        noise = bootstrap_noise(points, model, density, points_per_ink, symmetries, config)
-        refined, width = denoise_density(refined, noise, config=config)
-    if sharpen:
-        refined, weight = sharpen_density(points, refined, points_per_ink)
-        if denoise:
-            refined, _ = calibrate_density(refined, ink)
-            refined, regular_width = denoise_density(refined, noise, REGULAR_NOISE_SHARE * weight, config)
-            width = np.hypot(width, regular_width)  # two Gaussian smoothings in a row: widths add in quadrature
-    refined, _ = calibrate_density(refined, ink)
-    return refined, float(weight.mean()), float(width.mean())
-
-
-def read_v5_stages(points: PointSet, model: OnnxModel, reading: Inference, density: np.ndarray, fill_thin: bool,
-                   sharpen: bool, denoise: bool, config: InferConfig = DEFAULT_INFER) -> Inference:
-    """A model without ``l_scale``: the reading (its ``density`` (H, W) in [0, 1], calibrated when
-    ``reading.calibration`` is set) finished as ``infer`` did for v5 (see :func:`infer_map`'s arguments):
-    light areas' a, b from zoomed readings and thin a, b filled (:mod:`export.evidence`), L sharpened and
-    denoised (:func:`refine_density`). Deleted with the last such model, with :func:`refine_density`,
-    :func:`bootstrap_noise` and the stages they call."""
-    shape, scale, symmetries = density.shape, reading.scale, reading.symmetries
-    ab = reading.lab_map.ab.astype(np.float64)
-    evidence = local_evidence(points, shape, reading.pixels_per_unit)
-    zooms, zoomed_share = (1,), 0.0
-    if fill_thin and len(points):
-        zoom = correlation_zoom(density)
-        zooms = zoom_levels(zoom)
-        ab_readings, evidence_readings = [ab], [evidence]
-        for f in zooms[1:]:
-            zoomed, _, zoomed_pixels_per_unit, _ = read_pattern(points, model, scale.points_per_ink / f, shape, symmetries,
-                                                                config.border_px)
-            ab_readings.append(zoomed.ab.astype(np.float64))
-            evidence_readings.append(local_evidence(points, shape, zoomed_pixels_per_unit))
-        ab, evidence = blend_zoomed(zoom, zooms, ab_readings), blend_zoomed(zoom, zooms, evidence_readings)
-        zoomed_share = float(np.mean(zoom > 1.0)) if len(zooms) > 1 else 0.0
-    lab_map = LabMap(np.concatenate([100.0 * (1.0 - density[..., None]), ab], axis=-1))
-    source = False
-    if fill_thin:
-        lab_map, source = fill_thin_correlation(lab_map, evidence)
-    sharpened_share = denoised_px = 0.0
-    if reading.calibration is not None and (sharpen or denoise) and len(points):  # L only: the zoom and the fill read the network's density
-        refined, sharpened_share, denoised_px = refine_density(points, model, density, scale.points_per_ink, sharpen,
-                                                               denoise, symmetries, config)
-        lab_map = with_density(lab_map, refined)
-    return replace(reading, lab_map=lab_map, evidence=summarise(evidence, fill_thin and source, source), zooms=zooms,
-                   zoomed_share=zoomed_share, sharpened_share=sharpened_share, denoised_px=denoised_px)
-
-
 def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scale: ScaleChoice | None = None,
-              fill_thin: bool = True, calibrate: bool = True, symmetries: int | None = None,
-              sharpen: bool = True, denoise: bool = True, config: InferConfig = DEFAULT_INFER) -> Inference:
+              calibrate: bool = True, symmetries: int | None = None, denoise: bool = True,
+              config: InferConfig = DEFAULT_INFER) -> Inference:
     """Infer the map of a point set as ``infer`` does (see the module docstring and :mod:`export.evidence`).
 
     Args:
@@ -450,18 +346,12 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
         scale: the pattern's scale; None chooses it (:func:`export.evidence.choose_points_per_ink`, the
             default :data:`POINTS_PER_INK` unless the pattern is denser). A given scale warns
             (:class:`PatternshopWarning`) when the pattern holds more points than a fully dark map.
-        fill_thin: (models without ``l_scale``) read a, b of light areas at a zoom
-            (:func:`export.evidence.correlation_zoom`) and replace them where the evidence stays thin by the
-            surrounding well-observed a, b.
         calibrate: scale the ink to the pattern's point count (:func:`export.evidence.calibrate_density`);
             False keeps the network's L.
-        sharpen: (models without ``l_scale``) with ``calibrate``, take L from the points where they are regular
-            (:func:`export.density.sharpen_density`), then restore the ink; a, b are read as without it.
-        denoise: with ``calibrate``, smooth L: within its predicted uncertainty (:func:`smooth_reading`), or,
-            for a model without ``l_scale``, where its detail is what the pattern's own noise explains
-            (:func:`refine_density`); a, b are read as without it.
+        denoise: with ``calibrate``, smooth L within its predicted uncertainty (:func:`smooth_reading`); a, b are
+            read as without it. A model without ``l_scale`` predicts no uncertainty: its L is not smoothed.
         symmetries: readings averaged over this many symmetries of the square (:func:`predict_symmetric`);
-            None: ``config.symmetries`` for a model with ``l_scale``, :data:`V5_SYMMETRIES` for one without.
+            None: ``config.symmetries``.
         config: the constants around the network (:class:`export.infer_config.InferConfig`).
 
     Raises:
@@ -477,7 +367,7 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
         if message:
             warnings.warn(message, PatternshopWarning, stacklevel=2)
     if symmetries is None:
-        symmetries = config.symmetries if model.has_l_scale else V5_SYMMETRIES
+        symmetries = config.symmetries
     width_px = map_width(points.domain, model, width)
     shape = (max(1, round(width_px * points.domain[1] / points.domain[0])), width_px)
     lab_map, output, pixels_per_unit, l_scale = read_pattern(points, model, scale.points_per_ink, shape, symmetries,
@@ -486,10 +376,10 @@ def infer_map(points: PointSet, model: OnnxModel, width: int | None = None, scal
     ink = len(points) / full_ink_points(scale.points_per_ink, points.domain)
     if calibrate:
         density, factor = calibrate_density(density, ink)
-    reading = Inference(with_density(lab_map, density), scale, None, output, pixels_per_unit, calibration=factor,
+    reading = Inference(with_density(lab_map, density), scale, output, pixels_per_unit, calibration=factor,
                         symmetries=symmetries)
-    if l_scale is None:
-        return read_v5_stages(points, model, reading, density, fill_thin, sharpen, denoise, config)
+    if l_scale is None:  # no predicted uncertainty to smooth within
+        return reading
     return smooth_reading(reading, density, l_scale, ink, calibrate and denoise, config)
 
 

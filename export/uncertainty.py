@@ -8,8 +8,7 @@ smoothings (:func:`smoothing_levels`: 1, 2, 4 ... px) and lets each pixel take t
 that level makes, averaged over a window, stays within ``k`` (:attr:`export.infer_config.InferConfig.smoothing_tolerance`)
 times the predicted scale averaged the same way: wide in flat areas, not across edges.
 
-:func:`smoothing_ladder` is the ladder itself, shared with the noise-sample denoising of models without
-``l_scale`` (:func:`export.density.denoise_density`), which decides the levels from a bootstrap of readings instead.
+:func:`smoothing_ladder` is the ladder itself, given how far each level may change the density.
 """
 
 from __future__ import annotations

@@ -402,9 +402,7 @@ def infer(
     points_per_ink: float | ScaleChoice | None = None,
     width: int | None = None,
     symmetries: int | None = None,
-    fill: bool = True,
     calibrate: bool = True,
-    sharpen: bool = True,
     denoise: bool = True,
     threads: int = 1,
     config: InferConfig | None = None,
@@ -419,21 +417,17 @@ def infer(
             default: :func:`infer_scale`: the point file's header, written by :func:`synthesize`, else chosen from the points).
         width: map width in pixels, >= 1 (default: 256 px on the domain's long side).
         symmetries: average the network over 8 (flips and transposes), 4 (flips), 2 or 1 symmetries, one network
-            pass each (default: ``config.symmetries`` for a model with an ``l_scale`` output, else 8).
-        fill: read the correlation of light areas at a zoom and fill it where too few points show it (models
-            without ``l_scale``).
+            pass each (default: ``config.symmetries``).
         calibrate: scale the ink so that the map holds the pattern's point count (False: the network's L;
-            then ``sharpen`` and ``denoise`` do nothing).
-        sharpen: take L from the points themselves where they are regular (blue noise, Lloyd, dithering; models
-            without ``l_scale``).
-        denoise: smooth L: within the uncertainty a model with ``l_scale`` predicts, else where its detail is no
-            larger than the pattern's own noise.
+            then ``denoise`` does nothing).
+        denoise: smooth L within the uncertainty the model predicts (its ``l_scale`` output; a model without one:
+            L is not smoothed).
         threads: ONNX Runtime threads, when the model is loaded here.
         config: the constants around the network (default :data:`export.infer_config.DEFAULT_INFER`).
 
     Returns:
         An :class:`~export.runtime.Inference`: ``.lab_map`` (the map, on the pattern's domain), ``.scale``,
-        ``.evidence`` and ``.report()`` (a JSON-ready dict).
+        ``.l_scale`` and ``.report()`` (a JSON-ready dict).
 
     Raises:
         PatternshopError: a missing model or point file, or a bad option.
@@ -448,8 +442,8 @@ def infer(
     if not isinstance(model, OnnxModel):
         model = load_model(model, threads=threads)
     scale = points_per_ink if isinstance(points_per_ink, ScaleChoice) else infer_scale(points, points_per_ink, config=config)
-    return infer_map(points, model, width=width, scale=scale, fill_thin=fill, calibrate=calibrate, symmetries=symmetries,
-                     sharpen=sharpen, denoise=denoise, config=config or DEFAULT_INFER)
+    return infer_map(points, model, width=width, scale=scale, calibrate=calibrate, symmetries=symmetries,
+                     denoise=denoise, config=config or DEFAULT_INFER)
 
 
 # --- batches ------------------------------------------------------------------------------------------------

@@ -156,7 +156,7 @@ def run_ood(args: argparse.Namespace, model_path: Path) -> dict:
     from synthesis.palette import load_palette
 
     results = evaluate_ood(model_path, load_palette(args.palette), args.quick, args.seed,
-                           Path(args.previews) if args.previews else None, fill=not args.raw)
+                           Path(args.previews) if args.previews else None, raw=args.raw)
     markdown_path = Path(args.markdown) if args.markdown else Path(args.out).with_suffix(".md")
     atomic_write_text(markdown_path, markdown(results))
     print(markdown(results))
@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--markdown", metavar="MD", help="ood: markdown tables (default: --out with .md)")
     parser.add_argument("--previews", metavar="DIR", help="ood: write contact sheets ood_*.png into DIR")
     parser.add_argument("--raw", action="store_true",
-                        help="ood: the network's maps as they come (no ink calibration, zoomed correlation or thin fill)")
+                        help="ood: the network's maps as they come (one run, no ink calibration or smoothing)")
     parser.add_argument("--palette", metavar="NPZ", help="ood: palette whose presets name the colours (default: the shipped one)")
     parser.add_argument("--data", default="data/eval", help="heldout: folder for the held-out pairs and stand-ins (default data/eval)")
     parser.add_argument("--items", type=int, default=48, help="heldout: held-out procedural pairs (default 48)")

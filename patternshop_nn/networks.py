@@ -26,7 +26,7 @@ Up-sampling (``upsample``):
   2-pixel checkerboard and the stack of them a lattice of period ``2**levels``
   (64 px), seen as marks on a 64-px grid in empty areas (a model trained with
   it, patternshop-procedural-v1, locked 94 % of its L and a,b variance to that
-  grid's phase; ``patternshop_nn/assets/MODEL_CARD.md``).
+  grid's phase; ``docs/history/model-v5.md``).
 * ``"nearest"`` or ``"bilinear"``: resize-convolution (Odena, Dumoulin and Olah,
   "Deconvolution and checkerboard artifacts", Distill 2016): up-sample by 2,
   then a 3x3 convolution. Every output pixel sees the same kernel, so a

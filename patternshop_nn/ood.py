@@ -4,10 +4,8 @@ Every input is made here, by other methods than the synthesiser the model was
 trained on, at the synthesiser's scale (50,000 points per fully dark unit
 square unless said otherwise), and read the way ``patternshop infer`` reads it
 (:func:`export.runtime.infer_map`: automatic scale, ink calibrated to the points,
-L sharpened where the points are regular and smoothed where its detail is noise,
-light areas' correlation read zoomed,
-thin correlation filled; ``--raw``: the
-network's output as it came).
+L smoothed within the model's predicted uncertainty when it has an ``l_scale``
+output; ``--raw``: the network's output as it came).
 
 1. **Stipplings of pictures**: scikit-image's ``camera``, ``astronaut``,
    ``moon`` and ``coins`` only (the other pictures stay unseen checks), density
@@ -93,9 +91,9 @@ STATIONARY: dict[str, tuple[Callable[[int, int], np.ndarray], str]] = {  # proce
 }
 
 
-def infer(points: PointSet, model: OnnxModel, fill: bool, scale: ScaleChoice | None = None) -> Inference:
-    """``infer``'s reading of a pattern (``fill``), or the network's alone: one run, no calibration, zoom or fill."""
-    return infer_map(points, model, scale=scale, fill_thin=fill, calibrate=fill, symmetries=None if fill else 1)
+def infer(points: PointSet, model: OnnxModel, raw: bool, scale: ScaleChoice | None = None) -> Inference:
+    """``infer``'s reading of a pattern, or with ``raw`` the network's alone: one run, no calibration or smoothing."""
+    return infer_map(points, model, scale=scale, calibrate=not raw, symmetries=1 if raw else None)
 
 
 def picture_density(name: str) -> tuple[np.ndarray, tuple[float, float]]:
@@ -145,7 +143,7 @@ def kde_scores(xy: np.ndarray, truth_L: np.ndarray, points_per_ink: float) -> di
             "kde_mae": round(scores[best_mae][1], 3), "kde_mae_bandwidth_px": best_mae}
 
 
-def stipplings(model: OnnxModel, pictures: tuple[str, ...], seed: int, fill: bool, previews: list) -> list[dict]:
+def stipplings(model: OnnxModel, pictures: tuple[str, ...], seed: int, raw: bool, previews: list) -> list[dict]:
     """Section 1 of the module docstring; appends (label, [truth, points, inferred, KDE]) rows to ``previews``."""
     rows = []
     for picture in pictures:
@@ -153,7 +151,7 @@ def stipplings(model: OnnxModel, pictures: tuple[str, ...], seed: int, fill: boo
         for method in STIPPLERS:
             xy = METHODS[method](density, STIPPLE_POINTS, domain, np.random.default_rng(seed))
             scale = points_per_ink_of(len(xy), density)
-            lab_map = infer(PointSet(xy, domain), model, fill, scale=ScaleChoice(scale, False)).lab_map
+            lab_map = infer(PointSet(xy, domain), model, raw, scale=ScaleChoice(scale, False)).lab_map
             truth = resample(density, lab_map.L.shape)
             truth_L = 100.0 * (1.0 - truth)
             ssim, mae = l_scores(truth_L, lab_map.L.astype(np.float64))
@@ -202,7 +200,7 @@ def nearest_preset_share(lab_map: LabMap, palette: Palette, preset: str) -> floa
     return float(np.mean(np.array(names)[distances.argmin(axis=1)] == preset))
 
 
-def stationary(model: OnnxModel, palette: Palette, densities: tuple[float, ...], seed: int, fill: bool,
+def stationary(model: OnnxModel, palette: Palette, densities: tuple[float, ...], seed: int, raw: bool,
                previews: list) -> list[dict]:
     """Sections 2 and 3: one row per process and density."""
     rows = []
@@ -211,14 +209,13 @@ def stationary(model: OnnxModel, palette: Palette, densities: tuple[float, ...],
         for density in densities:
             n = round(density * POINTS_PER_INK)
             xy = make(n, seed)
-            inference = infer(PointSet(xy), model, fill)
+            inference = infer(PointSet(xy), model, raw)
             lab_map = inference.lab_map
             rows.append({"process": process, "preset": preset, "density": density, "n": len(xy),
                          "points_per_ink": round(inference.scale.points_per_ink), "automatic_scale": inference.scale.points_per_ink != POINTS_PER_INK,
                          "right_preset_share": round(nearest_preset_share(lab_map, palette, preset), 4),
                          "mean_L": round(float(lab_map.L.mean()), 2), "L_spread_p5_p95": round(float(np.subtract(*np.percentile(lab_map.L, [95, 5]))), 2),
                          "mean_a": round(float(lab_map.ab[..., 0].mean()), 1), "mean_b": round(float(lab_map.ab[..., 1].mean()), 1),
-                         "thin_evidence_share": None if inference.evidence is None else round(inference.evidence.thin_share, 4),
                          **lattice(inference)})
             maps.append(lab_map.to_srgb())
         previews.append((process, maps))
@@ -236,16 +233,16 @@ def synthesised_count(lab_map: LabMap, points_per_ink: float) -> int:
         return 0
 
 
-def inventions(model: OnnxModel, palette: Palette, seed: int, synthesise: bool, fill: bool, previews: list) -> dict:
+def inventions(model: OnnxModel, palette: Palette, seed: int, synthesise: bool, raw: bool, previews: list) -> dict:
     """Section 4: empty, one point, half-empty."""
     from synthesis.synthesize import point_count
 
-    empty = infer(PointSet(np.zeros((0, 2))), model, fill).lab_map
-    one = infer(PointSet(np.array([[0.5, 0.5]])), model, fill).lab_map
+    empty = infer(PointSet(np.zeros((0, 2))), model, raw).lab_map
+    one = infer(PointSet(np.array([[0.5, 0.5]])), model, raw).lab_map
     rng = np.random.default_rng(seed)
     half_n = round(0.5 * 0.5 * POINTS_PER_INK)
     half_xy = rng.random((half_n, 2)) * [0.5, 1.0]
-    half = infer(PointSet(half_xy), model, fill).lab_map
+    half = infer(PointSet(half_xy), model, raw).lab_map
     density = half.density()
     result = {"empty_min_L": round(float(empty.L.min()), 2), "empty_share_L97": round(float(np.mean(empty.L >= 97)), 4),
               "one_point_share_L95": round(float(np.mean(one.L >= 95)), 4),
@@ -262,11 +259,11 @@ def inventions(model: OnnxModel, palette: Palette, seed: int, synthesise: bool, 
     return result
 
 
-def point_counts(model: OnnxModel, counts: tuple[int, ...], seed: int, fill: bool) -> list[dict]:
+def point_counts(model: OnnxModel, counts: tuple[int, ...], seed: int, raw: bool) -> list[dict]:
     """Section 5: Poisson patterns of each count -> (count synthesize would make) / count (L only: a, b do not matter)."""
     rows = []
     for n in counts:
-        inference = infer(PointSet(np.random.default_rng([seed, n]).random((n, 2))), model, fill)
+        inference = infer(PointSet(np.random.default_rng([seed, n]).random((n, 2))), model, raw)
         made = synthesised_count(inference.lab_map, inference.scale.points_per_ink)
         rows.append({"n": n, "points_per_ink": round(inference.scale.points_per_ink), "synthesised": made, "ratio": round(made / n, 4)})
     return rows
@@ -317,10 +314,10 @@ def contact_sheet(rows: list[tuple[str, list[np.ndarray]]], path: Path, tile: in
         sheet.save(tmp, format="PNG")
 
 
-def evaluate_ood(model_path: Path, palette: Palette, quick: bool, seed: int, preview_dir: Path | None, fill: bool = True) -> dict:
+def evaluate_ood(model_path: Path, palette: Palette, quick: bool, seed: int, preview_dir: Path | None, raw: bool = False) -> dict:
     """All sections (reduced with ``quick``: :data:`QUICK`); contact sheets into ``preview_dir`` when given.
 
-    ``fill``: fill a, b where the evidence is thin, as ``infer`` does (False: the network's a, b as they came).
+    ``raw``: the network's maps as they came (one run, no calibration or smoothing) instead of ``infer``'s.
     """
     model = OnnxModel(model_path, threads=1)
     pictures = QUICK["pictures"] if quick else PICTURES
@@ -328,12 +325,12 @@ def evaluate_ood(model_path: Path, palette: Palette, quick: bool, seed: int, pre
     counts = QUICK["counts"] if quick else COUNTS
     sheets: dict[str, list] = {"stipplings": [], "stationary": [], "inventions": []}
     start = time.perf_counter()
-    results = {"model": str(model_path), "model_name": model.metadata.get("name"), "quick": quick, "seed": seed, "fill_thin": fill,
+    results = {"model": str(model_path), "model_name": model.metadata.get("name"), "quick": quick, "seed": seed, "raw": raw,
                "l_scale": model.has_l_scale,
-               "stipplings": stipplings(model, pictures, seed, fill, sheets["stipplings"]),
-               "stationary": stationary(model, palette, densities, seed, fill, sheets["stationary"]),
-               "inventions": inventions(model, palette, seed, not quick, fill, sheets["inventions"]),
-               "point_counts": point_counts(model, counts, seed, fill), "cost": cost(model_path)}
+               "stipplings": stipplings(model, pictures, seed, raw, sheets["stipplings"]),
+               "stationary": stationary(model, palette, densities, seed, raw, sheets["stationary"]),
+               "inventions": inventions(model, palette, seed, not quick, raw, sheets["inventions"]),
+               "point_counts": point_counts(model, counts, seed, raw), "cost": cost(model_path)}
     results["seconds"] = round(time.perf_counter() - start, 1)
     results["targets"] = targets(results)
     if preview_dir is not None:
@@ -369,13 +366,12 @@ def targets(results: dict) -> list[dict]:
 
 def markdown(results: dict) -> str:
     """The results as markdown tables: targets, stipplings, stationary processes, point counts."""
-    if not results["fill_thin"]:
+    if results["raw"]:
         reading = "as the network gave them (--raw)"
-    elif results.get("l_scale"):
+    elif results["l_scale"]:
         reading = "as infer makes them (symmetries averaged, ink calibrated, L smoothed within the predicted uncertainty)"
     else:
-        reading = ("as infer makes them (8 symmetries averaged, ink calibrated, L sharpened where the points are regular and "
-                   "smoothed where its detail is noise, light areas read zoomed, thin a,b filled)")
+        reading = "as infer makes them (symmetries averaged, ink calibrated; no l_scale output, so L not smoothed)"
     lines = [f"# Out-of-distribution evaluation: {results.get('model_name') or results['model']}", "",
              f"{'Quick' if results['quick'] else 'Full'} run, seed {results['seed']}, {results['seconds']} s, maps {reading}.", "",
              "| figure | target | measured | met |", "|---|---|---|---|"]

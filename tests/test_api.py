@@ -298,5 +298,5 @@ def test_warnings_reach_the_caller():
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         ps.infer(ps.PointSet(np.random.default_rng(0).random((300, 2))), points_per_ink=100, width=16, symmetries=1,
-                 fill=False, calibrate=False)
+                 calibrate=False)
     assert any(issubclass(w.category, PatternshopWarning) and "more than a fully dark map" in str(w.message) for w in caught)

@@ -101,8 +101,8 @@ def test_convert_denoises_as_infer_does_unless_told_not_to(tmp_path, capsys):
     from synthesis.generators import generate
 
     torch.manual_seed(0)  # tiny_onnx's weights depend on the tests run before; denoising's effect on them does too
-    tiny_onnx = tmp_path / "tiny.onnx"
-    export_onnx(DualBranchUNet(base_channels=4, max_channels=8), tiny_onnx, {"name": "tiny"})
+    tiny_onnx = tmp_path / "tiny.onnx"  # with l_scale: a model without it is never denoised
+    export_onnx(DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest", l_scale=True), tiny_onnx, {"name": "tiny"})
     folder = tmp_path / "points"
     folder.mkdir()
     points = PointSet(generate("white", 10_000, seed=1))
@@ -121,7 +121,7 @@ def test_convert_denoises_as_infer_does_unless_told_not_to(tmp_path, capsys):
 @pytest.mark.parametrize("l_scale", [True, False])
 def test_convert_writes_the_bytes_infer_writes(l_scale, tmp_path, capsys):
     """Two worker processes write, file for file, the TIFF that ``infer --symmetries 1`` writes (convert's default):
-    the uncertainty path of a model with ``l_scale`` and the stages of one without."""
+    the uncertainty path of a model with ``l_scale`` and the plain reading of one without."""
     import torch
 
     from synthesis.generators import generate

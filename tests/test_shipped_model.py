@@ -8,30 +8,27 @@ The reduced evaluation reuses ``python -m patternshop_nn.evaluate``'s machinery 
   :func:`patternshop_nn.evaluate.score` against the best KDE and the palette decoding;
 * 8 held-out pairs of other methods' patterns (seed 1000, ``other_methods.share=1.0``: no synthesis), the
   network's density and latent MAE;
-* Poisson, jittered-grid and Thomas patterns at density 1.0 read by the network alone (``ood.infer``
-  without fill: one run, no calibration), the share of pixels whose nearest preset is the right one.
+* Poisson, jittered-grid and Thomas patterns at density 1.0 read by the network alone (``ood.infer``,
+  ``raw``: one run, no calibration), the share of pixels whose nearest preset is the right one.
 
-Measured with the shipped patternshop-procedural-v5 (ONNX Runtime, one thread):
+Measured with the shipped patternshop-procedural-v10 (ONNX Runtime, one thread; the functions below
+on the same pairs, the degraded copies made as in :func:`test_a_degraded_model_fails_the_headline_figures`):
 
 ==========================================  ========  =========  =====================================
-figure                                      measured  bound      earlier models / degraded copies
+figure                                      measured  bound      degraded copies (weights x (1 + s N))
 ==========================================  ========  =========  =====================================
-procedural density MAE (KDE 0.0994)         0.0660    <= 0.0713  v2 0.0783; weights x (1 + 0.1 N) 0.0735
-procedural latent MAE (palette 0.1442)      0.1298    <= 0.1402  v2 0.1276 (not a discriminating figure)
-other methods: density MAE                  0.0463    <= 0.0500  v2 0.0599; weights x (1 + 0.05 N) 0.0512
-other methods: latent MAE                   0.0093    <= 0.0125  v2-v4 0.0075-0.0112; x (1 + 0.05 N) 0.0151
-stationary, network alone: right preset     >= 0.999  >= 0.95    jitter: v4 0.755, v3 0.016, v2 0.053
+procedural density MAE (KDE 0.1005)         0.0732    <= 0.0791  s 0.02: 0.0757; 0.05: 0.0831
+procedural latent MAE (palette 0.1198)      0.1330    <= 0.1436  s 0.05: 0.1326 (not a discriminating figure)
+other methods: density MAE                  0.0464    <= 0.0501  s 0.02: 0.0478; 0.05: 0.0600
+other methods: latent MAE                   0.0063    <= 0.0085  s 0.02: 0.0066; 0.05: 0.0129
+stationary, network alone: right preset     >= 0.998  >= 0.95    s 0.1: >= 0.992
 ==========================================  ========  =========  =====================================
 
-The MAE bounds are 8 % above the measurement (the other-method latent MAE, a small figure, 35 %: it takes
-every earlier model's); v3 and v4 score better on the pairs (stage 5 cost 4.5 % in density, MODEL_CARD.md)
-and fail only on the jittered grid. Weights x (1 + 0.02 N) pass (other-method latent 0.0104). The per-pair
-figures of the 4 procedural pairs agree with default.eval.json's to 0.0012 (density) and 0.0014 (latent),
-asserted to 0.003 and 0.004 (v4's differ by 0.0035 and 0.0083); the pairs have changed a little since it
-was recorded (the synthesiser). Re-measured after the synthesiser's nearest-neighbour term: procedural density MAE
-0.0676 (KDE 0.1019), latent 0.1337 (palette 0.1189); other methods 0.0463 and 0.0124 (the same as before it: those
-pairs need no synthesis). v2-v4 are the models of commits ab18275, 41d61b6 and 369e364
-(``git show COMMIT:patternshop_nn/assets/default.onnx``), measured with :func:`headline` on the same pairs.
+The MAE bounds are 8 % above the measurement (the other-method latent MAE, a small figure, 35 %). v10 reads the
+synthesised procedural pairs less well than v5 did (0.0732 against v5's 0.0676 on these 4 pairs; 0.0633 against 0.0557 on
+the 24 of default.eval.json: the price of its development stipplings, docs/network.md "Model v10") and the other
+methods' latent better (0.0063 against 0.0124). The per-pair figures of the 4 procedural pairs agree with
+default.eval.json's (made by the same code) to 1e-4, asserted to 0.003 and 0.004.
 """
 
 from __future__ import annotations
@@ -55,10 +52,10 @@ HELD_OUT_SEED = 1000  # python -m patternshop_nn.evaluate's default, and the rec
 PROCEDURAL_PAIRS, OTHER_PAIRS = 4, 8
 PROCESSES = ("poisson", "jitter", "thomas")  # at density 1.0; Poisson-disk and Lloyd cost 26 s and 6 s to make
 BOUNDS = {  # figure: (bound, "max" or "min"); measurements in the module docstring
-    "procedural_density_mae": (0.0713, "max"),
-    "procedural_latent_mae": (0.1402, "max"),
-    "other_density_mae": (0.0500, "max"),
-    "other_latent_mae": (0.0125, "max"),
+    "procedural_density_mae": (0.0791, "max"),
+    "procedural_latent_mae": (0.1436, "max"),
+    "other_density_mae": (0.0501, "max"),
+    "other_latent_mae": (0.0085, "max"),
     **{f"right_preset_{process}": (0.95, "min") for process in PROCESSES},
 }
 RECORDED = json.loads((DEFAULT_MODEL.parent / "default.eval.json").read_text())
@@ -84,7 +81,7 @@ def headline(model: OnnxModel, held_out: tuple[Path, Path]) -> dict:
     palette = load_palette()
     for process in PROCESSES:
         make, preset = ood.STATIONARY[process]
-        lab_map = ood.infer(PointSet(make(POINTS_PER_INK, HELD_OUT_SEED)), model, fill=False).lab_map
+        lab_map = ood.infer(PointSet(make(POINTS_PER_INK, HELD_OUT_SEED)), model, raw=True).lab_map
         figures[f"right_preset_{process}"] = ood.nearest_preset_share(lab_map, palette, preset)
     return figures
 
@@ -104,7 +101,8 @@ def test_shipped_model_keeps_its_headline_figures(held_out: tuple[Path, Path]) -
     # about as good as the network on these 4 pairs, so the bound only guards against the network falling clearly behind
     # it. Measured gain: +0.22 against the old CNN-feature decoding; -0.042 with the PCF decoding; -0.125 since the
     # synthesiser's nearest-neighbour term (the pairs' patterns come closer to the palette's exemplars: the baseline's
-    # latent MAE 0.125 -> 0.119, the network's, trained on the older synthesiser's pairs, 0.130 -> 0.134).
+    # latent MAE 0.125 -> 0.119, the network's, trained on the older synthesiser's pairs, 0.130 -> 0.134). v10: density
+    # gain 0.271 (v5 0.34), latent gain -0.111.
     assert procedural["density_gain_vs_kde"] > 0.25 and procedural["latent_gain_vs_baseline"] > -0.16
     # the recorded evaluation is this model's: its first pairs score, on average, what default.eval.json says. The pairs
     # are remade by today's synthesiser, so single pairs move with it (tone term and ink hold: up to 0.0041 density
@@ -115,7 +113,7 @@ def test_shipped_model_keeps_its_headline_figures(held_out: tuple[Path, Path]) -
 
 
 def test_a_degraded_model_fails_the_headline_figures(held_out: tuple[Path, Path], tmp_path: Path) -> None:
-    """The shipped weights each multiplied by (1 + 0.05 N(0, 1)): measured other-method density 0.0512, latent 0.0151."""
+    """The shipped weights each multiplied by (1 + 0.05 N(0, 1)): measured other-method density 0.0600, latent 0.0129 (v10)."""
     import onnx
     from onnx import numpy_helper
 

@@ -205,6 +205,30 @@ def test_clean_pairs_drops_exactly_the_lightened_synthesised_items(tmp_path):
     assert main([str(tmp_path / "old"), str(tmp_path / "clean")]) == 1  # never into a folder that has pairs
 
 
+def test_subset_pairs_keeps_the_first_shards_the_inked_items_and_a_seeded_draw(tmp_path):
+    """data_gen.subset_pairs (the lineage's lattices-v7b-sub and light2-v7b-sub): first shards, then items of mean
+    density >= --min-ink, then --keep of them drawn by the seed; the same call gives the same items."""
+    from data_gen.shards import read_manifest
+    from data_gen.subset_pairs import main, mean_ink
+
+    generate(compose_config("pairs", [f"out_dir={tmp_path / 'src'}", "workers=1", "map_size=32", "raster_size=32", "chunk=4",
+                                      "synthesis.points_per_ink=3000", "synthesis.iterations=2", "num_items=12",
+                                      "sparse.share=0.5", "sparse.holes=0", "other_methods.share=1.0"]))
+    source = load_pairs(tmp_path / "src")
+    inks = {int(item): mean_ink(target) for item, target in zip(source.item, source.target, strict=True)}
+    threshold = float(np.median(list(inks.values())))
+    assert main([str(tmp_path / "src"), str(tmp_path / "first"), "--first-shards", "2"]) == 0
+    assert sorted(load_pairs(tmp_path / "first").item.tolist()) == list(range(8))  # shards of 4 items: 0-3, 4-7
+    assert main([str(tmp_path / "src"), str(tmp_path / "inked"), "--min-ink", str(threshold)]) == 0
+    inked = sorted(load_pairs(tmp_path / "inked").item.tolist())
+    assert inked == sorted(item for item, ink in inks.items() if ink >= threshold) and 0 < len(inked) < 12
+    for name in ("a", "b"):
+        assert main([str(tmp_path / "src"), str(tmp_path / name), "--min-ink", str(threshold), "--keep", "3", "--seed", "11"]) == 0
+    drawn = sorted(load_pairs(tmp_path / "a").item.tolist())
+    assert drawn == sorted(load_pairs(tmp_path / "b").item.tolist()) and len(drawn) == 3 and set(drawn) <= set(inked)
+    assert read_manifest(tmp_path / "a")["subset"]["kept"] == 3
+    assert main([str(tmp_path / "src"), str(tmp_path / "a")]) == 1  # never into a folder that has pairs
+
 def lattice_angle(xy: np.ndarray, period: float) -> float:
     """Orientation (radians, modulo the lattice's rotational period) of the nearest-neighbour vectors of xy (k, 2)."""
     from scipy.spatial import cKDTree

@@ -89,14 +89,13 @@ def test_model_with_l_scale_reads_one_pass_per_symmetry_and_keeps_the_count(mode
     calls = []
     predict = model.predict_outputs
     model.predict_outputs = lambda rasters: calls.append(rasters.shape) or predict(rasters)
-    points = PointSet(generate("white", 3_000, seed=7))  # light: v5 would read zooms, resamplings and sharpen
+    points = PointSet(generate("white", 3_000, seed=7))  # light: still one pass per symmetry
     inference = infer_map(points, model)
     assert len(calls) == DEFAULT_INFER.symmetries == inference.symmetries
-    assert inference.zooms == (1,) and inference.evidence is None and inference.sharpened_share == 0
     assert point_count(inference.lab_map, inference.scale.points_per_ink) == len(points)
     assert inference.l_scale.shape == inference.lab_map.L.shape and inference.denoised_px > 0
     report = inference.report()
-    assert report["l_scale_mean"] > 0 and "thin_evidence_share" not in report
+    assert report["l_scale_mean"] > 0
     empty = infer_map(PointSet(np.zeros((0, 2))), model)
     assert empty.lab_map.L.min() == pytest.approx(100.0, abs=1e-3) and empty.denoised_px == 0
 
@@ -142,7 +141,7 @@ def test_infer_command_with_an_l_scale_model_chooses_the_scale_once(models: tupl
     assert len(chosen) == 1  # the command's scale is the one infer reads at, not chosen again
     written = json.loads(report.read_text())
     assert written["symmetries"] == DEFAULT_INFER.symmetries and written["l_scale_mean"] > 0 and written["denoised_px"] > 0
-    assert "L smoothed" in err and "sharpened" not in err and "too few points" not in err
+    assert "L smoothed within the network's predicted uncertainty" in err and "has no l_scale output" not in err
 
 
 def test_scale_choice_reads_the_config() -> None:

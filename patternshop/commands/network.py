@@ -26,17 +26,10 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
         ".txt files), else 50,000 unless the pattern is denser somewhere, then the scale at which its "
         "densest 1% reads as full ink: the chosen scale is printed) and rasterised so that its points per pixel match "
         f"the network's training, mirrored {DEFAULT_INFER.border_px} raster pixels beyond the domain's border. The ink is then scaled so that "
-        "the map holds the pattern's point count (an empty pattern gives a white map). Where the points are regular "
-        "(blue noise, Lloyd, dithering: their nearest neighbours farther apart than a Poisson pattern's), L is sharpened from "
-        "the points themselves, whose fine counts are nearly noise-free there; Poisson and clustered areas keep the "
-        "network's L. L is then smoothed wherever its detail is no larger than the noise the pattern's own point count "
-        "explains (measured by reading two Poisson resamplings of the map), wide in flat areas, not across edges. "
-        "Light areas (density below 0.6) "
-        "take a,b from readings at 2, 4 ... 64 times fewer points per ink, where the network sees their "
-        "arrangement at a density it reads correlation at; where even then too few points show correlation, a,b are "
-        "filled from the surrounding well-observed correlation and the report says how much of the map that is. "
-        "A model that predicts its uncertainty of L (an 'l_scale' output) needs none of this: L is smoothed only "
-        "as far as that uncertainty allows, from one network pass per symmetry. "
+        "the map holds the pattern's point count (an empty pattern gives a white map), and L is smoothed as far as the "
+        "model's predicted uncertainty of L (its 'l_scale' output) allows: wide in flat areas, not across edges; one "
+        "network pass per symmetry, nothing more. A model without an l_scale output (older exports, models trained "
+        "with l_scale=false) is read the same way but its L is not smoothed. "
         "A non-square domain lies on a square raster and the output is cropped back, so the map keeps the domain's "
         "aspect, 256 px on its long side unless --width is given.",
     )
@@ -52,26 +45,17 @@ def register(subparsers: argparse._SubParsersAction, common: argparse.ArgumentPa
                        help=f"{POINTS_PER_INK_MEANING}, at the pattern's scale (default: the file header's "
                        f"'# points_per_ink:', else {POINTS_PER_INK} as synthesize, raised automatically for a pattern denser "
                        "than that)")
-    infer.add_argument("--no-fill", action="store_true",
-                       help="keep the network's a,b: no zoomed reading of light areas, no fill where too few points show "
-                       "correlation or the map holds no ink (default: both, for a model without l_scale)")
     infer.add_argument("--no-calibrate", action="store_true",
                        help="keep the network's L (default: ink scaled so that the map holds the pattern's point count; "
-                       "implies --no-sharpen and --no-denoise)")
-    infer.add_argument("--no-sharpen", action="store_true",
-                       help="keep the network's L where the points are regular too (default for a model without l_scale: L "
-                       "sharpened there from a density estimate of the points about one point spacing wide, guided by the "
-                       "network's L)")
+                       "implies --no-denoise)")
     infer.add_argument("--no-denoise", action="store_true",
                        help="keep L's fine detail even where it is only noise (default: L smoothed, from 1 px up to 1/16 of the "
-                       "map, as far as the model's predicted uncertainty of L allows, or, for a model without l_scale, where "
-                       "the detail is no larger than a Poisson pattern of the same density shows through the network: 2 more "
-                       "readings)")
+                       "map, as far as the model's predicted uncertainty of L allows; a model without l_scale: never "
+                       "smoothed)")
     infer.add_argument("--symmetries", type=int, choices=SYMMETRY_CHOICES,
                        help="average the network's readings over this many symmetries of the square, one network pass each: "
-                       f"8 flips and transposes, 4 flips, 2, 1 a single run (default: {DEFAULT_INFER.symmetries} for a model "
-                       "with l_scale, 8 for one without)")
-    infer.add_argument("--report", metavar="JSON", help="write a JSON report (points per ink chosen, evidence shares, ...)")
+                       f"8 flips and transposes, 4 flips, 2, 1 a single run (default: {DEFAULT_INFER.symmetries})")
+    infer.add_argument("--report", metavar="JSON", help="write a JSON report (points per ink chosen, ink factor, smoothing, ...)")
     add_threads_option(infer)
     infer.set_defaults(func=run_infer)
 
@@ -114,9 +98,8 @@ def run_infer(args: argparse.Namespace) -> None:
     width = map_width(points.domain, model, args.width)
     check_memory(args, inference_bytes(side, width * max(1, round(width * h / w))),
                  f"inferring a {width} px wide map from a {side}x{side} px raster ({scale.points_per_ink:g} points per ink)")
-    inference = api.infer(points, model=model, points_per_ink=scale, width=args.width, fill=not args.no_fill,
-                          calibrate=not args.no_calibrate, symmetries=args.symmetries, sharpen=not args.no_sharpen,
-                          denoise=not args.no_denoise)
+    inference = api.infer(points, model=model, points_per_ink=scale, width=args.width,
+                          calibrate=not args.no_calibrate, symmetries=args.symmetries, denoise=not args.no_denoise)
     report = {"points": args.points, "n": len(points), "model": str(model.path), "output": str(output), **inference.report()}
     with all_or_nothing():
         write_map(inference.lab_map, output, bits=args.bits)
@@ -124,26 +107,18 @@ def run_infer(args: argparse.Namespace) -> None:
             write_preview(inference.lab_map, preview)
         if report_path is not None:
             atomic_write_text(report_path, json.dumps(report, indent=2) + "\n")
-    lab_map, evidence = inference.lab_map, inference.evidence
+    lab_map = inference.lab_map
     print(f"wrote {output} ({lab_map.width}x{lab_map.height} px) from {len(points)} points with {model.path}", file=sys.stderr)
     keep = (f"; pass --points-per-ink {scale.points_per_ink:.0f} to synthesize to keep the point count"
             if scale.points_per_ink != POINTS_PER_INK else "")
     print(f"read at {scale.describe()}{keep}", file=sys.stderr)
     if inference.calibration is not None and len(points):
         print(f"ink scaled by {inference.calibration:.3g} to hold the {len(points)} points", file=sys.stderr)
-    if inference.sharpened_share > 0:
-        print(f"L of {100 * inference.sharpened_share:.1f}% of the map sharpened from its regular points", file=sys.stderr)
     if inference.denoised_px > 0:
-        where = "where its detail is noise" if inference.l_scale is None else "within the network's predicted uncertainty"
-        print(f"L smoothed {where}: {inference.denoised_px:.1f} px wide on average", file=sys.stderr)
-    if inference.zoomed_share > 0:
-        zooms = ", ".join(f"{zoom}x" for zoom in inference.zooms[1:])
-        print(f"a,b of {100 * inference.zoomed_share:.1f}% of the map (its light areas) read at fewer points per ink ({zooms})",
+        print(f"L smoothed within the network's predicted uncertainty: {inference.denoised_px:.1f} px wide on average",
               file=sys.stderr)
-    if evidence is not None and evidence.thin_share > 0:
-        action = "filled from the surrounding correlation" if evidence.filled else "left as the network gave them"
-        print(f"{100 * evidence.thin_share:.1f}% of the map has too few points to show correlation; its a,b were {action}",
-              file=sys.stderr)
+    if not model.has_l_scale:
+        print(f"note: {model.path} has no l_scale output (predicted uncertainty of L): its L is not smoothed", file=sys.stderr)
 
 
 def _card_field(text: str) -> tuple[str, object]:
