@@ -620,3 +620,58 @@ def test_pointset_rejects_wrong_shapes() -> None:
 def test_domain_argument_may_be_an_array(tmp_path: Path) -> None:
     path = put(tmp_path / "p.txt", "0.5 0.25\n")
     assert read_points(path, domain=np.array([1.0, 0.5])).domain == (1.0, 0.5)
+
+
+_ODD_FILES = {
+    "written": None,  # write_points' own output, set in the test
+    "exponents": "# domain: 1 0.5\n8.78668054e-05 0.25\n1e-07 4.2e-01\n0.5 1E-3\n",
+    "radius": "0.1 0.2 0.01\n0.3 0.4 0\n",
+    "no_final_newline": "0.1 0.2\n0.3 0.4",
+    "tabs_and_spaces": "  0.1\t0.2  \n0.3    0.4\n",
+    "blank_line": "# x y\n0.1 0.2\n\n0.3 0.4\n",
+    "spaces_only_line": "0.1 0.2\n   \n0.3 0.4\n",
+    "crlf": "# domain: 1 1\r\n0.1 0.2\r\n0.3 0.4\r\n",
+    "inline_comment": "0.1 0.2 # first\n0.3 0.4\n",
+    "late_comment": "0.1 0.2\n# points_per_ink: 500\n0.3 0.4\n",
+    "commas": "0.1,0.2\n0.3,0.4\n",
+    "csv_header": "x y\n0.1 0.2\n",
+    "one_column": "0.1\n0.3\n",
+    "ragged": "0.1 0.2\n0.3 0.4 0.5\n",
+    "four_columns": "0.1 0.2 0.3 0.4\n",
+    "word": "0.1 abc\n",
+    "nan": "0.1 nan\n",
+    "outside": "# domain: 1 0.5\n0.1 0.2\n0.3 0.9\n",
+    "form_feed": "0.1 0.2\x0c\n0.3 0.4\n",
+    "unicode_space": "0.1\u20030.2\n",
+    "bom": "\ufeff# points_per_ink: 1200\n0.1 0.2\n",
+    "header_only": "# domain: 1 1\n",
+    "bad_scale": "# points_per_ink: -3\n0.1 0.2\n",
+}
+
+
+def _read_or_error(path: Path) -> tuple:
+    """What read_points makes of a file: (xy bytes, radius bytes, domain, points per ink) or the error's text."""
+    try:
+        points = read_points(path, allow_empty=True)
+    except PointFileError as exc:
+        return ("error", str(exc))
+    radius = None if points.radius is None else points.radius.tobytes()
+    return points.xy.tobytes(), radius, points.domain, points.points_per_ink
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_FILES))
+def test_fast_parser_is_the_plain_one(tmp_path: Path, name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """read_points with the one-piece fast path (synthesis.points._parse_numbers) against the line-by-line parsers
+    alone: the same values bit for bit, the same header, or the same error naming the same line."""
+    path = tmp_path / "points.txt"
+    if _ODD_FILES[name] is None:
+        rng = np.random.default_rng(7)
+        xy = rng.random((3000, 2)) * [1.0, 0.75]
+        xy[:10] *= 1e-6  # %.9g writes these with exponents
+        write_points(PointSet(xy, (1.0, 0.75), radius=rng.random(3000) * 1e-3, points_per_ink=41911.8105), path)
+        assert points_module._parse_numbers(path, path.read_text()) is not None  # the fast path reads it
+    else:
+        put(path, _ODD_FILES[name])
+    fast = _read_or_error(path)
+    monkeypatch.setattr(points_module, "_parse_numbers", lambda path, text: None)
+    assert fast == _read_or_error(path)
