@@ -14,6 +14,7 @@ from pathlib import Path
 
 import torch
 
+from synthesis.atomic import atomic_path
 from synthesis.errors import PatternshopError
 
 # Pix2PixModule hyper-parameters that fix the tensors and the graph; the rest only steer training.
@@ -83,10 +84,11 @@ def soup_checkpoints(a_path: str | Path, b_path: str | Path, alpha: float, out_p
         raise PatternshopError(f"architectures differ: {k} is {ha.get(k)!r} in {a_path} and {hb.get(k)!r} in {b_path}")
     mixed = interpolate_state_dicts(ca["state_dict"], cb["state_dict"], alpha)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"pytorch-lightning_version": cb.get("pytorch-lightning_version", lightning.__version__),
-                "epoch": cb.get("epoch", 0), "global_step": cb.get("global_step", 0), "state_dict": mixed,
-                "hparams_name": cb.get("hparams_name", "kwargs"), "hyper_parameters": hb,
-                "soup": {"a": str(a_path), "b": str(b_path), "alpha": alpha}}, out_path)
+    with atomic_path(out_path) as temporary:  # a failed or interrupted write leaves no half checkpoint
+        torch.save({"pytorch-lightning_version": cb.get("pytorch-lightning_version", lightning.__version__),
+                    "epoch": cb.get("epoch", 0), "global_step": cb.get("global_step", 0), "state_dict": mixed,
+                    "hparams_name": cb.get("hparams_name", "kwargs"), "hyper_parameters": hb,
+                    "soup": {"a": str(a_path), "b": str(b_path), "alpha": alpha}}, temporary)
     return out_path
 
 
