@@ -114,13 +114,12 @@ def command_seconds(arguments: list[str], repeats: int) -> list[float]:
 def model_results(path: Path, inputs: list[Path], convert_dir: Path, tmp: Path, repeats: int, quick: bool) -> dict:
     model = OnnxModel(path, threads=1)
     counts = (DEFAULT_INFER.symmetries, DEFAULT_INFER.convert_symmetries) if quick else SYMMETRY_CHOICES
-    default = DEFAULT_INFER.symmetries
     rows = {f"{source.stem} x{s}": in_process(model, source, s, repeats, tmp / "map.tif")
-            for source in inputs for s in sorted({*counts, default})}
+            for source in inputs for s in sorted({*counts, DEFAULT_INFER.symmetries})}
     command = command_seconds(["infer", str(inputs[0]), str(tmp / "cli.tif"), "--threads", "1", "--model", str(path)], repeats)
-    return {"model": str(path), "has_l_scale": model.has_l_scale, "default_symmetries": default, "in_process": rows,
+    return {"model": str(path), "has_l_scale": model.has_l_scale, "default_symmetries": DEFAULT_INFER.symmetries, "in_process": rows,
             "command_s": {"median": round(statistics.median(command), 3), "all": [round(t, 3) for t in command],
-                          "symmetries": default, "target_met": statistics.median(command) <= TARGET_SECONDS},
+                          "symmetries": DEFAULT_INFER.symmetries, "target_met": statistics.median(command) <= TARGET_SECONDS},
             "convert": {"symmetries": DEFAULT_INFER.convert_symmetries, **convert_cpu(model, convert_dir, tmp / "cpu")}}
 
 

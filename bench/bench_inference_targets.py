@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -166,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     model = OnnxModel(args.model, threads=1)
     start = time.perf_counter()
-    results = {"model": str(model.path), "load_average": list(__import__("os").getloadavg())}
+    results = {"model": str(model.path), "load_average": list(os.getloadavg())}
     print("1. textured pictures", flush=True)
     results["textured"] = textured(model, 2 if args.quick else TEXTURE_ITEMS)
     print("2. stationary processes", flush=True)

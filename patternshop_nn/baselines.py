@@ -29,6 +29,7 @@ from scipy.ndimage import gaussian_filter
 from data_gen.shards import Pairs
 from synthesis.errors import PatternshopError
 from synthesis.palette import Palette, ab_to_latent
+from synthesis.raster import point_raster
 
 KDE_BANDWIDTHS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0)  # pixels of the raster
 MIN_WINDOW_POINTS = 128  # fewest points the perceptual decoder is given
@@ -46,6 +47,12 @@ def latent_mae(predicted: np.ndarray, target: np.ndarray) -> float:
     inked = (1.0 - target[..., 0, :, :]) >= LATENT_MIN_DENSITY
     error = np.abs(predicted[..., 1:, :, :] - target[..., 1:, :, :]).mean(axis=-3)
     return float(error[inked].mean()) if inked.any() else float("nan")
+
+
+def count_raster(xy_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) points per pixel, splatted bilinearly (sums kept), of points (n, 2) in map pixel coordinates."""
+    side = max(shape)
+    return point_raster(np.asarray(xy_px, np.float64) / side, side, clip=False)[:shape[0], :shape[1]].astype(np.float64)
 
 
 def kde_density(raster: np.ndarray, points_per_ink: float, bandwidth_px: float) -> np.ndarray:

@@ -50,10 +50,9 @@ import numpy as np
 from PIL import Image
 
 from data_gen.stipplers import METHODS, lloyd_stipple, poisson_disk
-from export.density import count_raster
 from export.evidence import ScaleChoice
 from export.runtime import Inference, OnnxModel, infer_map
-from patternshop_nn.baselines import KDE_BANDWIDTHS, kde_density
+from patternshop_nn.baselines import KDE_BANDWIDTHS, count_raster, kde_density
 from synthesis.conventions import POINTS_PER_INK, full_ink_points
 from synthesis.labmap import LabMap
 from synthesis.palette import Palette

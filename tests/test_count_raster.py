@@ -1,11 +1,11 @@
-"""Points as a raster of counts per map pixel (export.density.count_raster, the KDE baselines of patternshop_nn.ood)."""
+"""Points as a raster of counts per map pixel (patternshop_nn.baselines.count_raster, the KDE baselines of patternshop_nn.ood)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from export.density import count_raster
+from patternshop_nn.baselines import count_raster
 
 
 def test_count_raster_keeps_the_points_of_a_non_square_map() -> None:
