@@ -6,9 +6,8 @@ Each method stipples a constant density (0.2, 0.4 and 0.6; ``--n`` points on the
 seeds; :meth:`synthesis.palette.Palette.locate` (what ``patternshop analyze`` reports as its colour) decodes
 each sample; the table gives the mean a, b, their spread (RMS distance to the mean, ab units), the nearest
 preset and its distance. The shipped palette decodes; the frozen test-set methods are measured too (their
-labels are never used for training). ``--methods`` measures only those (the lattices, whose rotation comes
-from the seed: ``--methods lattice_square lattice_hex lattice_square_jitter lattice_hex_jitter --seeds 8 --out
-bench/stippler_labels_lattices.json``).
+labels are never used for training). ``--methods`` measures only those (a lattice's rotation and offset come
+from the seed).
 """
 
 from __future__ import annotations

@@ -41,38 +41,38 @@ Frozen test-set methods (:data:`FROZEN_METHODS`; docs/evaluation.md), never used
 (capacity-constrained Voronoi stippling, :func:`capacity_lloyd_stipple`, 30 iterations).
 
 Measured labels (``python bench/stippler_labels.py --seeds 2``, file ``bench/stippler_labels.json``): each
-method stipples constant densities 0.2, 0.4 and 0.6 with 2048 points on the unit square at seeds 0 and 1;
-the shipped palette decodes each sample (:meth:`synthesis.palette.Palette.locate`, ``patternshop
-analyze``'s colour); mean a, b, spread = RMS distance of the six samples to their mean (ab units),
-nearest preset and its distance:
+method stipples constant densities 0.2, 0.4 and 0.6 with 2048 points on the unit square at seeds 0 and 1 (the
+lattices at a random rotation and offset per seed); the shipped palette decodes each sample
+(:meth:`synthesis.palette.Palette.locate`, ``patternshop analyze``'s colour, which does not depend on the
+orientation); mean a, b, spread = RMS distance of the six samples to their mean (ab units), nearest preset and
+its distance:
 
 =========================  ======  ======  ======  ========  =====
 method                     a       b       spread  nearest   dist.
 =========================  ======  ======  ======  ========  =====
-``random``                 2.8     -0.9    0.6     white     2.9
-``lloyd``                  18.6    -55.4   0.1     blue      6.4
-``poisson_disk``           25.0    -50.6   0.0     blue      1.7
-``jitter``                 19.8    -27.6   0.1     step      7.6
-``clusters``               18.7    56.8    47.5    red       48.9
-``floyd_steinberg``        21.1    -50.4   7.7     blue      3.3
-``jarvis``                 24.8    -41.0   4.9     step      9.1
-``floyd_steinberg_jitter`` 24.1    -43.0   5.2     blue      9.0
-``bayer``                  18.0    -50.6   10.0    blue      6.2
-``lloyd_few``              21.5    -53.6   0.4     blue      3.0
-``lloyd_many``             18.6    -55.4   0.1     blue      6.4
-``lattice_square``         -12.2   -55.4   18.2    lloyd     8.3
-``lattice_hex``            -5.9    -59.3   9.4     lloyd     1.7
-``lattice_square_jitter``  24.0    -43.4   0.4     blue      8.6
-``lattice_hex_jitter``     24.4    -42.0   0.8     step      9.5
-``sierra_serpentine``      23.2    -41.8   4.6     step      8.6
-``capacity_voronoi``       2.2     -60.6   0.2     lloyd     8.2
+``random``                 2.4     -0.4    0.1     white     2.4
+``lloyd``                  16.8    -56.6   0.1     blue      8.6
+``poisson_disk``           24.9    -50.7   0.0     blue      1.6
+``jitter``                 20.7    -28.8   0.2     step      6.8
+``clusters``               56.9    44.2    8.6     red       10.2
+``floyd_steinberg``        24.4    -48.1   3.1     blue      4.0
+``jarvis``                 25.2    -38.0   5.6     step      7.8
+``floyd_steinberg_jitter`` 23.6    -40.2   7.1     step      7.7
+``bayer``                  24.5    -45.1   6.1     blue      6.9
+``lloyd_few``              18.4    -55.5   0.5     blue      6.7
+``lloyd_many``             16.8    -56.6   0.1     blue      8.6
+``lattice_square``         -43.6   -43.9   0.1     lattice   3.3
+``lattice_hex``            -25.6   -56.9   0.1     lattice   18.9
+``lattice_square_jitter``  23.5    -43.3   0.0     blue      8.8
+``lattice_hex_jitter``     24.5    -43.2   0.0     blue      8.8
+``sierra_serpentine``      25.3    -37.6   5.9     step      7.7
+``capacity_voronoi``       1.8     -60.7   0.8     lloyd     7.8
 =========================  ======  ======  ======  ========  =====
 
-The lattices' rows come from ``--methods lattice_square lattice_hex lattice_square_jitter lattice_hex_jitter
---seeds 8`` (``bench/stippler_labels_lattices.json``; each seed a random rotation, so their spread is the palette's
-orientation dependence: up to 18 ab units for the square lattice). The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with
-their measured a, b. The raster methods are lattices decoded at one orientation: the palette is not
-rotation invariant (docs/palette.md), so their labels are to be re-measured once it is.
+The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with their
+measured a, b, which ``tests/test_training_sources.py`` re-measures for the lattices. Network v10's pairs' lattices
+carried labels decoded by the palette before its features became orientation free ((-12.2, -55.4) for the square
+lattice, 18 ab units of spread over rotations), 32 ab units from what ``analyze`` reads today.
 """
 
 from __future__ import annotations
@@ -488,12 +488,11 @@ code (:func:`data_gen.pairs.other_methods_setting`, :func:`data_gen.pairs.other_
 DEFAULT_METHODS = ("random", "lloyd", "poisson_disk", "jitter", "clusters")  # other_methods.methods when none are given
 LABELS: dict[str, str | tuple[float, float]] = {
     "random": "white", "lloyd": "blue", "poisson_disk": "blue", "jitter": "step", "clusters": "red",  # jitter: merged into step
-    # measured (bench/stippler_labels.py, shipped palette): the mean a, b decoded from each method's stationary samples
-    "floyd_steinberg": (21.1, -50.4), "jarvis": (24.8, -41.0), "floyd_steinberg_jitter": (24.1, -43.0),
-    "bayer": (18.0, -50.6), "lloyd_few": (21.5, -53.6), "lloyd_many": (18.6, -55.4),
-    # bench/stippler_labels_lattices.json: 8 seeds, each a random rotation and offset
-    "lattice_square": (-12.2, -55.4), "lattice_hex": (-5.9, -59.3),
-    "lattice_square_jitter": (24.0, -43.4), "lattice_hex_jitter": (24.4, -42.0),
+    # measured (bench/stippler_labels.py --seeds 2, shipped palette): the mean a, b decoded from each method's stationary samples
+    "floyd_steinberg": (24.4, -48.1), "jarvis": (25.2, -38.0), "floyd_steinberg_jitter": (23.6, -40.2),
+    "bayer": (24.5, -45.1), "lloyd_few": (18.4, -55.5), "lloyd_many": (16.8, -56.6),
+    "lattice_square": (-43.6, -43.9), "lattice_hex": (-25.6, -56.9),
+    "lattice_square_jitter": (23.5, -43.3), "lattice_hex_jitter": (24.5, -43.2),
 }
 """Training label of each method: a preset name of the pairs' palette, or the (a, b) measured by decoding the method's
 stationary samples with the shipped palette (the module docstring's table)."""

@@ -13,6 +13,7 @@ from data_gen.shards import load_pairs, map_to_target, target_to_map
 from data_gen.stipplers import DEFAULT_METHODS, LABELS, METHODS, bayer_matrix
 from synthesis.errors import PatternshopError
 from synthesis.synthesize import point_count
+from synthesis.palette import load_palette
 
 NEW = ("floyd_steinberg", "jarvis", "floyd_steinberg_jitter", "bayer", "lloyd_few", "lloyd_many")
 
@@ -265,7 +266,16 @@ def test_lattice_methods_follow_the_density_and_have_measured_labels(method):
     xy = METHODS[method](gradient(), 800, (1.0, 40 / 60), np.random.default_rng(2))
     assert abs(len(xy) - 800) <= 0.06 * 800
     assert np.sum(xy[:, 0] > 0.5) > 1.5 * np.sum(xy[:, 0] < 0.5)
-    assert len(LABELS[method]) == 2 and LABELS[method][1] < -30  # measured blue side (bench/stippler_labels_lattices.json)
+    assert len(LABELS[method]) == 2 and LABELS[method][1] < -30  # measured blue-green side (bench/stippler_labels.json)
+
+
+@pytest.mark.parametrize("method", ["lattice_square", "lattice_hex", "floyd_steinberg"])
+def test_measured_labels_are_what_the_shipped_palette_decodes_at_any_rotation(method):
+    palette = load_palette()
+    decoded = [palette.locate(METHODS[method](np.full((64, 64), 0.4), 2048, (1.0, 1.0), np.random.default_rng(seed)))
+               for seed in (5, 6, 7)]  # a lattice's rotation and offset come from the seed
+    for colour in decoded:
+        assert np.hypot(colour.a - LABELS[method][0], colour.b - LABELS[method][1]) < 6.0
 
 
 def test_v6_generation_config_mixes_every_source_and_keeps_the_default_key():
