@@ -104,6 +104,33 @@ def test_calibrated_ink_holds_the_pattern_count() -> None:
     assert not white.any() and factor == 0.0
     blank, factor = calibrate_density(np.zeros((8, 8)), 0.3)  # nothing to scale: left as it is
     assert not blank.any() and factor == 1.0
+    full, factor = calibrate_density(density, 0.9999)  # more than the ink can hold: full ink wherever there is ink
+    assert np.array_equal(full, (density > 0).astype(float)) and factor == pytest.approx(1 / density[density > 0].min())
+
+
+def bisected_calibration(density: np.ndarray, mean_density: float) -> tuple[np.ndarray, float]:
+    """The plain reference for :func:`calibrate_density` (reachable means): bisection of the factor, 200 halvings."""
+    low, high = 0.0, 1.0
+    while np.minimum(high * density, 1.0).mean() < mean_density:
+        low, high = high, high * 4.0
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if np.minimum(middle * density, 1.0).mean() < mean_density else (low, middle)
+    return np.minimum(high * density, 1.0), high
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_newton_calibration_equals_bisection(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    density = rng.random((171, 256)) ** rng.uniform(0.3, 4.0) * (rng.random((171, 256)) > 0.2 * (seed % 3))
+    for mean_density in (0.003, 0.1, 0.4, 0.6, 0.75):
+        if mean_density * density.size >= np.count_nonzero(density):
+            continue
+        calibrated, factor = calibrate_density(density, mean_density)
+        reference, reference_factor = bisected_calibration(density, mean_density)
+        assert factor == pytest.approx(reference_factor, rel=1e-9)
+        np.testing.assert_allclose(calibrated, reference, rtol=1e-9, atol=1e-12)
+        assert calibrated.mean() == pytest.approx(mean_density, rel=1e-10)
 
 
 def test_model_without_l_scale_reads_once_per_symmetry_calibrates_and_does_not_smooth(tiny_model: Path) -> None:
