@@ -14,11 +14,12 @@ caller to report. Outputs are written atomically, named after the input
   at a time (:func:`_chunks`), so that they end together. For a 20k-point file
   at 41,912 points per ink (a 704 x 704 px raster: 586 px of domain and the
   mirrored border) a model with ``l_scale`` reads the file once: about 0.19 s of
-  one core, of which the network 0.10-0.11 s, the smoothing 0.034 s, the
-  degeneracy check 0.011-0.016 s, reading 0.013 s, writing 0.008 s, the
-  water-filling 0.008 s (``bench/bench_infer.py``, section 3); a
-  model without it the same, less the smoothing. N workers on N idle cores go about N times as
-  fast as one, once started (about 0.5 s of one core each: imports, the ONNX session).
+  one core, of which the network 0.12 s, the smoothing 0.019 s, reading 0.011 s,
+  writing 0.009 s, the degeneracy check 0.006 s, the water-filling 0.001 s
+  (``bench/bench_infer.py``, section 3); a model without it the same, less the
+  smoothing. Each worker starts in about 0.45 s of one core (imports, the ONNX
+  session); on this project's 2-core machine two workers convert 1.5 times as
+  many files a second as one (MODEL_CARD.md, "Cost").
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
 
