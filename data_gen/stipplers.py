@@ -72,7 +72,7 @@ method                     a       b       spread  nearest   dist.
 The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with their
 measured a, b, which ``tests/test_training_sources.py`` re-measures for the lattices. Network v10's pairs' lattices
 carried labels decoded by the palette before its features became orientation free ((-12.2, -55.4) for the square
-lattice, 18 ab units of spread over rotations), 32 ab units from what ``analyze`` reads today.
+lattice, 18 ab units of spread over rotations), 34 ab units from what ``analyze`` reads today.
 """
 
 from __future__ import annotations
