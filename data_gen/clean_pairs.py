@@ -29,7 +29,7 @@ from omegaconf import OmegaConf
 from data_gen.makers import MapMaker, build_maker
 from data_gen.pairs import PairSettings, item_map
 from data_gen.shards import MANIFEST, Pairs, list_shards, map_to_target, read_manifest, read_shard, write_manifest
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, run_module_cli
 
 COMPUTED = ("pairs", "points", "bytes", "bytes_per_1000_pairs", "shards", "skipped")  # write_manifest's own fields
 
@@ -91,15 +91,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m data_gen.clean_pairs", description=__doc__.split("\n\n")[0])
     parser.add_argument("source", type=Path, help="pair folder with a manifest.json")
     parser.add_argument("destination", type=Path, help="new folder for the kept pairs")
-    args = parser.parse_args(argv)
-    try:
+
+    def run(args: argparse.Namespace) -> None:
         record = clean(args.source, args.destination)
-    except PatternshopError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    counts = {reason: len(items) for reason, items in record["dropped"].items()}
-    print(f"[clean] {args.destination}: kept {record['kept']}, dropped {counts}", file=sys.stderr)
-    return 0
+        counts = {reason: len(items) for reason, items in record["dropped"].items()}
+        print(f"[clean] {args.destination}: kept {record['kept']}, dropped {counts}", file=sys.stderr)
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

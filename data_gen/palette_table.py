@@ -34,6 +34,7 @@ import numpy as np
 from synthesis.palette import (DECODE_BIN_WIDTH, DECODE_NEIGHBOURS, DECODE_POWER, DEFAULT_PALETTE, DISPERSION_LUT_SIZE, LUT_SIZE,
                                NEIGHBOUR_QUANTILES, Palette, ab_to_latent, exemplar_neighbour_bounds, hue_chroma,
                                latent_to_ab, neighbour_table_path)
+from synthesis.errors import run_module_cli
 from synthesis.pcf import count_dispersion, pcf_radii, stationary_pcf
 
 PRESET_POINTS = 4096  # generator realisations measured per preset ...
@@ -161,41 +162,38 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--neighbours-only", action="store_true",
                         help="only write the nearest-neighbour bounds table beside the input and its provenance section; "
                              "the asset is not rewritten")
-    args = parser.parse_args(argv)
-    from data_gen.provenance import git_commit, utc_now
-    from synthesis.atomic import atomic_write_text
-    from synthesis.errors import PatternshopError
 
-    only = args.decoding_only or args.neighbours_only
-    try:
+    def run(args: argparse.Namespace) -> None:
+        from data_gen.provenance import git_commit, utc_now
+        from synthesis.atomic import atomic_write_text
+
+        only = args.decoding_only or args.neighbours_only
         palette = Palette.load(args.palette, layout_only=not only)
-    except PatternshopError as exc:
-        print(f"palette_table: error: {exc}", file=sys.stderr)
-        return 2
-    command = "python -m data_gen.palette_table " + " ".join(argv if argv is not None else sys.argv[1:])
-    output, sections = Path(args.palette), {}
-    if not only:
-        start = time.perf_counter()
-        palette, record = with_preset_exemplars(palette, palette.exemplar_points.shape[1], lambda s: print(s, file=sys.stderr))
-        output = Path(args.output or args.palette)
-        palette.save(output)
-        sections = {"presets": palette.presets, "table": {
-            "command": command,
-            "radii": [round(float(r), 3) for r in palette.radii], "estimator": "tent bins (synthesis.pcf), periodic",
-            "preset_points": PRESET_POINTS, "preset_realisations": PRESET_REALISATIONS, "preset_seed": PRESET_SEED,
-            "presets": record, "seconds": round(time.perf_counter() - start, 1), "commit": git_commit(), "built": utc_now(),
-        }, "asset_bytes": output.stat().st_size}
-    if not args.neighbours_only:
-        sections["decoding"] = {**decoding_record(palette), "command": command, "commit": git_commit(), "built": utc_now()}
-    if not args.decoding_only:
-        sections["neighbours"] = {**write_neighbour_table(output), "command": command, "commit": git_commit(),
-                                  "built": utc_now()}
-    provenance_path = output.with_suffix(".json")
-    provenance = json.loads(provenance_path.read_text()) if provenance_path.is_file() else {}
-    atomic_write_text(provenance_path, json.dumps(provenance | sections, indent=2) + "\n")
-    print(f"[table] wrote {provenance_path}" + ("" if only else f" and {output} ({output.stat().st_size / 1e6:.1f} MB)"),
-          file=sys.stderr)
-    return 0
+        command = "python -m data_gen.palette_table " + " ".join(argv if argv is not None else sys.argv[1:])
+        output, sections = Path(args.palette), {}
+        if not only:
+            start = time.perf_counter()
+            palette, record = with_preset_exemplars(palette, palette.exemplar_points.shape[1], lambda s: print(s, file=sys.stderr))
+            output = Path(args.output or args.palette)
+            palette.save(output)
+            sections = {"presets": palette.presets, "table": {
+                "command": command,
+                "radii": [round(float(r), 3) for r in palette.radii], "estimator": "tent bins (synthesis.pcf), periodic",
+                "preset_points": PRESET_POINTS, "preset_realisations": PRESET_REALISATIONS, "preset_seed": PRESET_SEED,
+                "presets": record, "seconds": round(time.perf_counter() - start, 1), "commit": git_commit(), "built": utc_now(),
+            }, "asset_bytes": output.stat().st_size}
+        if not args.neighbours_only:
+            sections["decoding"] = {**decoding_record(palette), "command": command, "commit": git_commit(), "built": utc_now()}
+        if not args.decoding_only:
+            sections["neighbours"] = {**write_neighbour_table(output), "command": command, "commit": git_commit(),
+                                      "built": utc_now()}
+        provenance_path = output.with_suffix(".json")
+        provenance = json.loads(provenance_path.read_text()) if provenance_path.is_file() else {}
+        atomic_write_text(provenance_path, json.dumps(provenance | sections, indent=2) + "\n")
+        print(f"[table] wrote {provenance_path}" + ("" if only else f" and {output} ({output.stat().st_size / 1e6:.1f} MB)"),
+              file=sys.stderr)
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from data_gen.shards import Pairs, load_pairs, target_to_map
 from synthesis.atomic import atomic_path
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, run_module_cli
 from synthesis.points import PointSet
 from synthesis.render import dots_grey
 
@@ -61,9 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--count", type=int, default=12, help="pairs to show (default 12)")
     parser.add_argument("--columns", type=int, default=3, help="pairs per row (default 3)")
     parser.add_argument("--tile", type=int, default=256, help="panel size in pixels (default 256)")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks")
-    args = parser.parse_args(argv)
-    try:
+
+    def run(args: argparse.Namespace) -> None:
         if args.count < 1 or args.columns < 1 or args.tile < 8:
             raise PatternshopError("--count and --columns must be >= 1 and --tile >= 8")
         output = Path(args.output)
@@ -72,13 +71,9 @@ def main(argv: list[str] | None = None) -> int:
         sheet = contact_sheet(load_pairs(args.pair_dir), args.count, args.columns, args.tile)
         with atomic_path(output) as tmp:
             Image.fromarray(sheet).save(tmp, format="PNG")
-    except (PatternshopError, OSError) as exc:
-        if args.debug:
-            raise
-        print(f"data_gen.preview: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {args.output}")
-    return 0
+        print(f"wrote {args.output}")
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ import tifffile
 from PIL import Image
 
 from data_gen.makers.procedural import ProceduralMaker
+from synthesis.errors import PatternshopError, run_module_cli
 from synthesis.labmap import LabMap
 
 LAYOUTS = ("faces", "animals", "churches", "folder", "treecover")
@@ -76,12 +77,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--count", type=int, default=8, help="items (default 8)")
     parser.add_argument("--seed", type=int, default=7, help="picture seed (default 7)")
     parser.add_argument("--size", type=int, default=256, help="picture side in pixels (default 256)")
-    args = parser.parse_args(argv)
-    if args.count < 1 or args.size < 8:
-        print("python -m data_gen.standins: error: --count must be >= 1 and --size >= 8", file=sys.stderr)
-        return 2
-    print(write_standin(args.layout, args.root, args.count, args.seed, args.size))
-    return 0
+
+    def run(args: argparse.Namespace) -> None:
+        if args.count < 1 or args.size < 8:
+            raise PatternshopError("--count must be >= 1 and --size >= 8")
+        print(write_standin(args.layout, args.root, args.count, args.seed, args.size))
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

@@ -47,7 +47,7 @@ import numpy as np
 from data_gen.shards import Pairs, load_pairs
 from export.runtime import OnnxModel
 from patternshop_nn.baselines import cached_baselines, density_mae, latent_mae
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, run_module_cli
 
 STANDIN_LAYOUTS = ("faces", "animals", "churches", "treecover")
 
@@ -184,9 +184,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--roundtrip", type=int, default=8, help="heldout: pairs for the round trip (default 8; 0 skips it)")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the evaluation data (default 1000; training uses 0)")
     parser.add_argument("--workers", type=int, default=2, help="heldout: pair-generation processes (default 2)")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks")
-    args = parser.parse_args(argv)
-    try:
+
+    def run(args: argparse.Namespace) -> None:
         with tempfile.TemporaryDirectory() as scratch:
             model_path = onnx_model_path(args.model, args.trained_points_per_ink, Path(scratch))
             if args.suite == "ood":
@@ -195,15 +194,11 @@ def main(argv: list[str] | None = None) -> int:
                 results = evaluate(str(model_path), Path(args.data), args.items, args.standin_items, args.roundtrip, args.seed,
                                    args.workers)
                 print(json.dumps({key: value for key, value in results.items() if key != "metadata"}, indent=2))
-    except (PatternshopError, OSError) as exc:
-        if args.debug:
-            raise
-        print(f"python -m patternshop_nn.evaluate: error: {exc}", file=sys.stderr)
-        return 2
-    from synthesis.atomic import atomic_write_text
+        from synthesis.atomic import atomic_write_text
 
-    atomic_write_text(Path(args.out), json.dumps(results, indent=2) + "\n")
-    return 0
+        atomic_write_text(Path(args.out), json.dumps(results, indent=2) + "\n")
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

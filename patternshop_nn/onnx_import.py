@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 from patternshop_nn.networks import L_SCALE_MIN, DualBranchUNet, init_weights
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, run_module_cli
 
 INITIAL_SCALE = 0.05  # the new l_scale head's starting scale (L/100): about the shipped model's held-out density MAE
 
@@ -180,20 +180,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--calibration-items", type=int, default=64)
     parser.add_argument("--l-scale", action="store_true", help="add the uncertainty head (Laplace scale of L)")
     parser.add_argument("--l-nll-weight", type=float, default=1.0)
-    args = parser.parse_args(argv)
-    try:
+
+    def run(args: argparse.Namespace) -> None:
         rasters = None
         if args.pairs:
             from data_gen.shards import load_pairs
 
             pairs = load_pairs(args.pairs)
             rasters = torch.from_numpy(pairs.raster[: args.calibration_items].astype(np.float32))[:, None]
-        path = checkpoint_from_onnx(args.model, args.out, rasters, l_scale=args.l_scale, l_nll_weight=args.l_nll_weight)
-    except (PatternshopError, OSError) as exc:
-        print(f"onnx_import: error: {exc}", file=sys.stderr)
-        return 2
-    print(path)
-    return 0
+        print(checkpoint_from_onnx(args.model, args.out, rasters, l_scale=args.l_scale, l_nll_weight=args.l_nll_weight))
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from synthesis.atomic import atomic_path
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, run_module_cli
 
 CALIBRATION_RASTERS = 36  # rasters of the training pairs whose activation ranges set the int8 scales
 FINE_FRACTION = 4  # convolutions whose output side is at least the raster's side / this stay float
@@ -129,17 +129,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", nargs="+", required=True, help="training-pair folders whose rasters calibrate it")
     parser.add_argument("--rasters", type=int, default=CALIBRATION_RASTERS, help=f"calibration rasters (default {CALIBRATION_RASTERS})")
     parser.add_argument("--seed", type=int, default=0, help="which rasters (default 0)")
-    args = parser.parse_args(argv)
-    if args.rasters < 1:
-        parser.error("--rasters must be at least 1")
-    try:
+
+    def run(args: argparse.Namespace) -> None:
+        if args.rasters < 1:
+            parser.error("--rasters must be at least 1")
         entry = quantize_model(args.model, args.output, args.pairs, args.rasters, args.seed)
-    except PatternshopError as exc:
-        print(f"quantize: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {args.output}: {len(entry['float_convolutions'])} convolutions kept float, "
-          f"calibrated on {entry['calibration_rasters']} rasters")
-    return 0
+        print(f"wrote {args.output}: {len(entry['float_convolutions'])} convolutions kept float, "
+              f"calibrated on {entry['calibration_rasters']} rasters")
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

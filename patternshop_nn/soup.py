@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 
 from synthesis.atomic import atomic_path
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, run_module_cli
 
 # Pix2PixModule hyper-parameters that fix the tensors and the graph; the rest only steer training.
 ARCHITECTURE_KEYS = ("levels", "base_channels", "max_channels", "upsample", "l_scale", "disc_channels", "disc_layers")
@@ -99,14 +99,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("b", help="checkpoint B (weight alpha; its hyper-parameters, epoch and step are kept)")
     parser.add_argument("out", help="checkpoint to write")
     parser.add_argument("--alpha", type=float, required=True, help="weight of B, 0..1")
-    args = parser.parse_args(argv)
-    try:
+
+    def run(args: argparse.Namespace) -> None:
         path = soup_checkpoints(args.a, args.b, args.alpha, args.out)
-    except (PatternshopError, OSError) as exc:
-        print(f"soup: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {path}: {1 - args.alpha:.3g} x {args.a} + {args.alpha:.3g} x {args.b}")
-    return 0
+        print(f"wrote {path}: {1 - args.alpha:.3g} x {args.a} + {args.alpha:.3g} x {args.b}")
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":

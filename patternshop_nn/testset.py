@@ -40,7 +40,7 @@ from data_gen.stipplers import FROZEN_METHODS
 from export.runtime import DEFAULT_MODEL
 from patternshop_nn.ood import contact_sheet, grey, kde_L, kde_scores, l_scores, resample
 from synthesis.conventions import full_ink_points
-from synthesis.errors import PatternshopError
+from synthesis.errors import PatternshopError, run_module_cli
 from synthesis.labmap import LabMap
 from synthesis.mapio import read_map
 from synthesis.points import PointSet, read_points, write_points
@@ -294,18 +294,17 @@ def main(argv: list[str] | None = None) -> int:
     score.add_argument("set_dir", help="a folder written by build")
     score.add_argument("--model", default=str(DEFAULT_MODEL), help="ONNX model (default: the shipped default.onnx)")
     score.add_argument("--out", required=True, help="folder for score.json, score.md, maps/ and the contact sheets")
-    args = parser.parse_args(argv)
-    if args.command == "build":
-        manifest = build_test_set(args.out_dir, n=args.points)
-        print(json.dumps({"out_dir": args.out_dir, "files": sum(len(p["stipplings"]) + 1 for p in manifest["pictures"])}))
-        return 0
-    try:
+
+    def run(args: argparse.Namespace) -> None:
+        if args.command == "build":
+            manifest = build_test_set(args.out_dir, n=args.points)
+            print(json.dumps({"out_dir": args.out_dir, "files": sum(len(p["stipplings"]) + 1 for p in manifest["pictures"])}))
+            return
         results = score_test_set(args.set_dir, args.model, args.out)
-    except (PatternshopError, OSError) as exc:
-        print(f"{parser.prog} score: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
-    print(json.dumps({"out": args.out, "cases": len(results["cases"]), "targets_met": all(t["met"] for t in results["targets"])}))
-    return 0
+        print(json.dumps({"out": args.out, "cases": len(results["cases"]),
+                          "targets_met": all(t["met"] for t in results["targets"])}))
+
+    return run_module_cli(parser, run, argv)
 
 
 if __name__ == "__main__":
