@@ -29,8 +29,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
+from export.gaussian import gaussian
 from export.infer_config import DEFAULT_INFER, InferConfig
 from synthesis.conventions import POINTS_PER_INK
 from synthesis.points import PointSet
@@ -82,7 +82,7 @@ def local_density(points: PointSet, points_per_ink: float, config: InferConfig =
     area = np.ones((rows, cols))
     area[-1, :] *= inside[0]
     area[:, -1] *= inside[1]
-    blurred = gaussian_filter(counts, sigma, mode="reflect") / np.maximum(gaussian_filter(area, sigma, mode="reflect"), 1e-9)
+    blurred = gaussian(counts, sigma) / np.maximum(gaussian(area, sigma), 1e-9)
     return blurred / cells
 
 

@@ -9,61 +9,17 @@ that level makes, averaged over a window, stays within ``k`` (:attr:`export.infe
 times the predicted scale averaged the same way: wide in flat areas, not across edges.
 
 :func:`smoothing_ladder` is the ladder itself, given how far each level may change the density. Its Gaussians
-(:func:`gaussian`) are scipy's, computed through the FFT where the kernel is wide: the same filter up to rounding
-(within 1e-15 of ``scipy.ndimage.gaussian_filter``, ``tests/test_uncertainty.py::test_fft_gaussian_is_scipys``).
+are scipy's filter computed through numpy's FFT (:func:`export.gaussian.gaussian`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
+from export.gaussian import gaussian
 from export.infer_config import DEFAULT_INFER, InferConfig
-
-
-FFT_MIN_RADIUS = 16  # kernels this wide (px) or wider go through the FFT: 256-px maps, radius 16 1.9 -> 1.4 ms, 64 6.6 -> 2.6 ms
-
-
-def _fast_length(n: int) -> int:
-    """The smallest length >= ``n`` with no prime factor above 5 (a fast FFT length)."""
-    while True:
-        m = n
-        for p in (2, 3, 5):
-            while m % p == 0:
-                m //= p
-        if m == 1:
-            return n
-        n += 1
-
-
-@lru_cache(maxsize=64)
-def _transfer(sigma: float, radius: int, length: int, real: bool) -> np.ndarray:
-    """The DFT of scipy's truncated Gaussian kernel (``radius`` px each side, summing to 1) wrapped around ``length``."""
-    x = np.arange(-radius, radius + 1)
-    kernel = np.exp(-0.5 / (sigma * sigma) * x**2)
-    wrapped = np.zeros(length)
-    wrapped[np.mod(x, length)] = kernel / kernel.sum()
-    transfer = np.fft.rfft(wrapped) if real else np.fft.fft(wrapped)
-    transfer.flags.writeable = False  # shared by the cache
-    return transfer
-
-
-def gaussian(image: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:
-    """``scipy.ndimage.gaussian_filter(image, sigma, truncate=truncate)`` of a float64 map (H, W), mode 'reflect': the
-    same kernel applied through the FFT of the map mirrored by the kernel's radius when that radius is at least
-    :data:`FFT_MIN_RADIUS` and below the map's sides (the same values within rounding), else scipy's own."""
-    radius = int(truncate * sigma + 0.5)
-    h, w = image.shape
-    if radius < FFT_MIN_RADIUS or radius >= min(h, w):
-        return gaussian_filter(image, sigma, truncate=truncate)
-    shape = (_fast_length(h + 2 * radius), _fast_length(w + 2 * radius))
-    rows = np.concatenate([image[:radius][::-1], image, image[::-1][:radius]])  # mirrored as scipy's 'reflect'
-    spectrum = np.fft.rfft2(np.concatenate([rows[:, :radius][:, ::-1], rows, rows[:, ::-1][:, :radius]], axis=1), s=shape)
-    spectrum *= _transfer(sigma, radius, shape[0], real=False)[:, None] * _transfer(sigma, radius, shape[1], real=True)
-    return np.fft.irfft2(spectrum, s=shape)[radius : radius + h, radius : radius + w]
 
 
 def smoothing_levels(shape: tuple[int, int], config: InferConfig = DEFAULT_INFER) -> tuple[float, ...]:

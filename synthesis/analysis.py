@@ -16,7 +16,6 @@ from synthesis.points import PointSet
 MAX_SPECTRUM_BINS = 1024
 SPECTRUM_REACH = 2.5  # the spectrum's bins reach this many times the mean point frequency sqrt(n)
 MAX_SPECTRUM_POINTS = round((MAX_SPECTRUM_BINS / SPECTRUM_REACH) ** 2)  # 167,772: the bins reach that far for so many points
-CHECK_CHUNK = 1 << 18  # points per block of the degeneracy check: progress and Ctrl+C between blocks
 # rough shares of an analysis's time, for its progress bar
 _STAGE_SHARES = {"coincident points": 10.0, "pair correlation": 84.0, "spectrum": 5.0, "palette colour": 1.0}
 
@@ -62,13 +61,11 @@ def coincident_points(points: PointSet, progress: Progress | None = None) -> int
     r_max on a side, that hold a point), so that a pattern filling a small part of
     its domain (a stippled object on a large white canvas) is judged at its own
     spacing; piles of coincident points stay coincident at any scale. Only the points
-    with a neighbour in the cells around them (:func:`_near_another`) are measured, in
-    blocks of :data:`CHECK_CHUNK` points (``progress(fraction)`` after each), so
-    Ctrl+C is honoured at once. A cKDTree, not the numba cell grid: ``infer`` runs
-    this check and would pay numba's start (0.3 s) for it.
+    with a neighbour in the cells around them (:func:`_near_another`) are measured
+    (:func:`_count_within`, ``progress(fraction)`` after each of its steps, so Ctrl+C
+    is honoured at once). numpy only: ``infer`` runs this check and would pay numba's
+    start (0.3 s), or scipy.spatial's import (0.1-0.2 s) for a k-d tree, for it.
     """
-    from scipy.spatial import cKDTree
-
     n = len(points)
     if n < 2:
         return 0
@@ -79,20 +76,44 @@ def coincident_points(points: PointSet, progress: Progress | None = None) -> int
     keys = cells[:, 1] * columns + cells[:, 0]  # one integer per cell: np.unique of rows took 8 times as long
     occupied = min(len(np.unique(keys)) * side * side, w * h)
     reach = COINCIDENT * float(r_max(n, occupied))
-    close = points.xy[_near_another(points.xy, reach)]
-    if not len(close):
+    return _count_within(points.xy[_near_another(points.xy, reach)], reach, progress)
+
+
+def _count_within(xy: np.ndarray, reach: float, progress: Progress | None = None) -> int:
+    """How many of the points (m, 2) have another closer than ``reach``, exactly.
+
+    The points are binned in square cells of side ``reach / sqrt(2)`` (a hair less): two points in one cell are
+    closer than ``reach``, so every point of a cell holding several counts at once (a pile of any size costs one
+    pass). A point alone in its cell can only be that close to a point of the 24 cells around it (two cells each
+    way), which are searched one offset at a time, only for the points not yet found (``progress`` after each
+    offset). Each cell's points are compared with at most one lone point per offset, so the work stays linear in m.
+    """
+    if len(xy) < 2:
         if progress is not None:
             progress(1.0)
         return 0
-    tree = cKDTree(close, balanced_tree=False)  # sliding-midpoint splits: built in half the time, queried as fast
-    coincident = 0
-    for start in range(0, len(close), CHECK_CHUNK):
-        stop = min(start + CHECK_CHUNK, len(close))
-        nearest = tree.query(close[start:stop], k=2, distance_upper_bound=reach)[0][:, 1]  # [:, 0]: itself
-        coincident += int(np.count_nonzero(nearest < reach))
+    cells = np.floor(xy / (reach / math.sqrt(2.0) * (1.0 - 1e-9))).astype(np.int64)
+    cells -= cells.min(axis=0) - 2  # two free rows and columns around: the offsets' keys stay distinct
+    columns = int(cells[:, 0].max()) + 3
+    keys = cells[:, 1] * columns + cells[:, 0]
+    order = np.argsort(keys, kind="stable")
+    keys, xy = keys[order], xy[order]
+    occupied, first, counts = np.unique(keys, return_index=True, return_counts=True)
+    found = np.repeat(counts > 1, counts)  # per point, in key order
+    offsets = [dy * columns + dx for dy in range(-2, 3) for dx in range(-2, 3) if dx or dy]
+    for step, offset in enumerate(offsets, 1):
+        lone = np.flatnonzero(~found)
+        target = keys[lone] + offset
+        cell = np.minimum(np.searchsorted(occupied, target), len(occupied) - 1)
+        hit = occupied[cell] == target
+        lone, cell = lone[hit], cell[hit]
+        pair_of = np.repeat(np.arange(len(lone)), counts[cell])  # every point of the cell, paired with its lone point
+        other = np.arange(len(pair_of)) + np.repeat(first[cell] - (np.cumsum(counts[cell]) - counts[cell]), counts[cell])
+        close = np.hypot(*(xy[lone[pair_of]] - xy[other]).T) < reach
+        found[lone[pair_of[close]]] = True
         if progress is not None:
-            progress(stop / len(close))
-    return coincident
+            progress(step / len(offsets))
+    return int(np.count_nonzero(found))
 
 
 def _near_another(xy: np.ndarray, reach: float) -> np.ndarray:

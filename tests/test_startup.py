@@ -244,3 +244,27 @@ def test_coincident_points_match_all_pairs(case):
     expected = _coincident_by_pairs(xy, domain)
     assert expected > 0  # every case has close pairs: the comparison is not vacuous
     assert coincident_points(PointSet(xy, domain)) == expected
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_count_within_matches_a_kd_tree(seed):
+    """The degeneracy check's exact count (numpy cells) against scipy's k-d tree, its reference: piles, clusters
+    straddling the cells, pairs at exactly the reach and just inside it."""
+    from scipy.spatial import cKDTree
+
+    from synthesis.analysis import _count_within
+
+    rng = np.random.default_rng(seed)
+    reach = 0.01
+    parents = rng.random((60, 2))
+    xy = np.concatenate([rng.random((3000, 2)),  # Poisson: a few close pairs
+                         parents[rng.integers(60, size=2000)] + rng.normal(scale=0.6 * reach, size=(2000, 2)),
+                         np.full((300, 2), 0.25),  # a pile
+                         [[0.7, 0.7], [0.7 + reach, 0.7], [0.8, 0.8], [0.8 + 0.999 * reach, 0.8],  # at and inside the reach
+                          [0.9, 0.1], [0.9 + 0.7 * reach, 0.1 + 0.7 * reach]]])
+    nearest = cKDTree(xy).query(xy, k=2)[0][:, 1]
+    expected = int(np.count_nonzero(nearest < reach))
+    assert 2300 < expected < len(xy)  # neither vacuous nor everything
+    fractions = []
+    assert _count_within(xy, reach, fractions.append) == expected
+    assert fractions[-1] == 1.0 and fractions == sorted(fractions)
