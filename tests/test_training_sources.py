@@ -203,7 +203,7 @@ def test_clean_pairs_drops_exactly_the_lightened_synthesised_items(tmp_path):
             lightened.add(int(item))
     assert lightened and set(record["dropped"]["sparse"]) == lightened and not record["dropped"]["unmatched"]
     assert sorted(clean.item.tolist()) == sorted(set(old.item.tolist()) - lightened)
-    assert main([str(tmp_path / "old"), str(tmp_path / "clean")]) == 1  # never into a folder that has pairs
+    assert main([str(tmp_path / "old"), str(tmp_path / "clean")]) == 2  # never into a folder that has pairs (a user error: status 2)
 
 
 def test_subset_pairs_keeps_the_first_shards_the_inked_items_and_a_seeded_draw(tmp_path):
