@@ -16,11 +16,10 @@ Bad files do not stop the run: they are listed on stderr at the end; so are
 files whose estimated memory exceeds their worker's share of --max-memory-gb.
 Ctrl+C stops the workers at once: files finished before it are kept, no
 half-written file is left. Point files to maps: each worker reads, infers and
-writes whole files; with a model that predicts its uncertainty (l_scale) a
-20k-point file takes about 0.2 s of one core (the network about half), so
-expect about 5 files/s per idle core once the workers have started (about
-0.5 s each); the shipped model, without l_scale, about 0.75 s per file.
---workers 2 on 2 idle cores about doubles it.
+writes whole files; with the shipped model a 20k-point file takes about
+0.17 s of one core (the network two thirds), so expect about 6 files/s per
+idle core once the workers have started (about 0.5 s each); --workers 2 on
+2 idle cores reaches about 1.5 times one worker's speed.
 Exit status: 0 every file converted or skipped; 1 some files failed (the
 others are written); 2 nothing done (bad arguments, missing folder or model)."""
 
