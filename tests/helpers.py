@@ -8,11 +8,17 @@ directory. Fixtures stay in ``conftest.py``.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from patternshop import cli
 from synthesis.labmap import LabMap
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def random_map(height: int, width: int, seed: int = 0) -> LabMap:
@@ -43,3 +49,11 @@ def one_line_error(err: str, *fragments: str) -> str:
     for fragment in fragments:
         assert fragment in lines[0], lines[0]
     return lines[0]
+
+
+def fresh_python_lines(code: str, timeout: float = 300) -> list[str]:
+    """The lines ``code`` prints when a fresh Python runs it in the repository root (what it imports is its own);
+    a non-zero exit fails the test with its stderr."""
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    assert result.returncode == 0, result.stderr
+    return result.stdout.splitlines()

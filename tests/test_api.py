@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import fresh_python_lines, run_cli
 from PIL import Image
 
 import patternshop as ps
@@ -93,9 +93,7 @@ def test_import_is_light_and_lazy():
             f"heavy = {HEAVY_MODULES!r}\n"
             "loaded = lambda: sorted(m for m in heavy if m in sys.modules)\n"
             "print(loaded()); ps.read_map; ps.PointSet; ps.presets(); ps.uniform_map(4); print(loaded())\n")
-    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split("\n")[:2] == ["[]", "[]"]
+    assert fresh_python_lines(code, timeout=60)[:2] == ["[]", "[]"]
 
 
 def test_every_public_name_resolves():

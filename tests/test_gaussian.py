@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +9,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from export.gaussian import gaussian
-
-ROOT = Path(__file__).resolve().parent.parent
+from helpers import fresh_python_lines
 
 
 @pytest.mark.parametrize("shape", [(256, 256), (200, 256), (96, 40), (35, 36), (3, 40), (1, 7), (1, 1)])
@@ -35,6 +32,4 @@ def test_infer_imports_no_scipy(tmp_path: Path) -> None:
             "from patternshop.cli import main\n"
             f"status = main(['infer', {str(points)!r}, {str(tmp_path / 'map.tif')!r}, '--threads', '1'])\n"
             "print(status, sorted(m for m in sys.modules if m == 'scipy' or m.startswith('scipy.')))\n")
-    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split("\n")[-2] == "0 []"
+    assert fresh_python_lines(code)[-1] == "0 []"

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import fresh_python_lines
 from synthesis.analysis import coincident_points
 from synthesis.errors import PatternshopError
 from synthesis.labmap import LabMap
@@ -40,9 +41,7 @@ def test_synthesis_path_imports_no_torch_matplotlib_or_sklearn(tmp_path):
             "import patternshop as ps\n"
             "ps.synthesize(ps.uniform_map(32, density=0.5, correlation='red'), points=300, iterations=2)\n"
             f"print(status, sorted(m for m in {HEAVY_MODULES!r} if m in sys.modules))\n")
-    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split("\n")[-2] == "0 []"
+    assert fresh_python_lines(code)[-1] == "0 []"
 
 
 @shipped
@@ -140,9 +139,7 @@ def test_synthesis_imports_neither_scipy_ndimage_nor_scipy_linalg():
             f"ps.synthesize({str(ROOT / 'examples' / 'logo.tif')!r}, points=300, iterations=2, progress=progress)\n"
             "dot = numba.njit(lambda a, b: np.dot(a, b))\n"
             "print(seen[0], seen[-1], dot(np.ones(3), np.arange(3.0)))\n")
-    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split("\n")[-2] == "[] [] 3.0"
+    assert fresh_python_lines(code)[-1] == "[] [] 3.0"
 
 
 def test_cached_kernels_load_without_numba_registries_and_give_the_same_points():
@@ -215,9 +212,7 @@ def test_infer_degeneracy_check_leaves_numba_unimported():
             "from synthesis.points import read_points\n"
             f"check_not_degenerate(read_points({str(ROOT / 'examples' / 'logo_points.txt')!r}))\n"
             "print('numba' in sys.modules, 'synthesis.cells' in sys.modules)\n")
-    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split("\n")[-2] == "False False"
+    assert fresh_python_lines(code)[-1] == "False False"
 
 
 def _coincident_by_pairs(xy: np.ndarray, domain: tuple[float, float]) -> int:
