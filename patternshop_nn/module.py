@@ -17,7 +17,12 @@ Manual optimisation, one discriminator and one generator step per batch:
   between L/100 and its target both blurred by a Gaussian of
   ``blurred_l1_sigma_px`` pixels (:func:`~patternshop_nn.networks.blurred_l1`):
   density error a few point spacings wide, which the per-pixel terms let the
-  network trade for a soft mean where its input is noisy;
+  network trade for a soft mean where its input is noisy; ``ssim_weight`` > 0
+  adds that weight times ``1 - SSIM`` of L/100 against its target
+  (:func:`~patternshop_nn.networks.structural_similarity`, scikit-image's
+  defaults): the per-pixel terms' best answer where the points cannot pin a
+  texture down is its local mean, a blur; SSIM also scores the local contrast
+  and structure, so a map keeps the detail the points do carry;
 * Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
   learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
   ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
@@ -39,7 +44,8 @@ import torch
 from torch import nn
 
 from patternshop_nn.baselines import LATENT_MIN_DENSITY
-from patternshop_nn.networks import DualBranchUNet, GANLoss, PatchDiscriminator, blurred_l1, init_weights, laplace_nll
+from patternshop_nn.networks import (DualBranchUNet, GANLoss, PatchDiscriminator, blurred_l1, init_weights, laplace_nll,
+                                     structural_similarity)
 
 LR_POLICIES = ("step", "linear")
 
@@ -52,7 +58,7 @@ class Pix2PixModule(L.LightningModule):
                  lr: float = 1e-4, betas: tuple[float, float] = (0.5, 0.999), lr_halving_epochs: int = 100,
                  sample_images: int = 4, upsample: str = "transposed", lr_policy: str = "step", lr_constant_epochs: int = 0,
                  lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3,
-                 blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0) -> None:
+                 blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0, ssim_weight: float = 0.0) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -77,7 +83,8 @@ class Pix2PixModule(L.LightningModule):
         return self.generator(raster), None
 
     def reconstruction_loss(self, fake: torch.Tensor, scale: torch.Tensor | None, target: torch.Tensor) -> tuple[torch.Tensor, dict]:
-        """The generator's non-adversarial loss (L1, or L's Laplace NLL and a, b's L1; plus the weighted blurred L1 of L;
+        """The generator's non-adversarial loss (L1, or L's Laplace NLL and a, b's L1; plus the weighted blurred L1 of L
+        and the weighted 1 - SSIM of L;
         module docstring) and its parts to log."""
         l1 = self.l1(fake, target)
         if scale is None:
@@ -89,6 +96,9 @@ class Pix2PixModule(L.LightningModule):
         if self.hparams.blurred_l1_weight > 0:
             parts["l_blurred_l1"] = blurred_l1(fake[:, :1], target[:, :1], self.hparams.blurred_l1_sigma_px)
             loss = loss + self.hparams.blurred_l1_weight * parts["l_blurred_l1"]
+        if self.hparams.get("ssim_weight", 0.0) > 0:
+            parts["l_ssim"] = structural_similarity(fake[:, :1], target[:, :1])
+            loss = loss + self.hparams.ssim_weight * (1.0 - parts["l_ssim"])
         return loss, parts
 
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists

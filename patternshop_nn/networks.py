@@ -75,6 +75,23 @@ def blurred_l1(predicted: torch.Tensor, target: torch.Tensor, sigma_px: float) -
     return gaussian_blur(predicted - target, sigma_px).abs().mean()
 
 
+def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_px: int = 7,
+                          data_range: float = 1.0) -> torch.Tensor:
+    """Mean SSIM of (B, C, H, W) ``predicted`` against ``target`` (values within ``data_range``), as scikit-image's
+    ``structural_similarity`` computes it by default: a uniform ``window_px`` square window, sample covariances,
+    K1 0.01, K2 0.03, averaged over the windows that lie wholly inside (H, W >= ``window_px``); a scalar <= 1,
+    differentiable. The frozen and development figures score L with that function (``patternshop_nn.ood``)."""
+    count = window_px * window_px
+    sample = count / (count - 1.0)
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    mean_p, mean_t = F.avg_pool2d(predicted, window_px, 1), F.avg_pool2d(target, window_px, 1)
+    var_p = sample * (F.avg_pool2d(predicted * predicted, window_px, 1) - mean_p * mean_p)
+    var_t = sample * (F.avg_pool2d(target * target, window_px, 1) - mean_t * mean_t)
+    cov = sample * (F.avg_pool2d(predicted * target, window_px, 1) - mean_p * mean_t)
+    ssim = ((2 * mean_p * mean_t + c1) * (2 * cov + c2)) / ((mean_p ** 2 + mean_t ** 2 + c1) * (var_p + var_t + c2))
+    return ssim.mean()
+
+
 def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:
     """Encoder level: LeakyReLU, 4x4 stride-2 convolution (halves the size), batch norm."""
     layers: list[nn.Module] = [nn.LeakyReLU(0.2), nn.Conv2d(in_channels, out_channels, 4, 2, 1, bias=not norm)]

@@ -16,7 +16,8 @@ read back and inverted:
   consistent), its bias is every fourth of the exported one;
 * the decoders' batch norms and the other convolutions are copied.
 
-With ``l_scale=True`` the generator gets the Laplace-scale head, initialised as new layers are
+With ``l_scale=True`` the generator gets the Laplace-scale head: the exported one where the model has it (its
+``l_scale`` output; such models name their layers ``generator.*``), else initialised as new layers are
 (:func:`patternshop_nn.networks.init_weights`) with its bias such that the scale starts at about ``initial_scale``.
 The discriminator is not exported: it starts fresh.
 """
@@ -69,14 +70,21 @@ def _onnx_layers(path: Path) -> tuple[dict[str, np.ndarray], list[tuple[str, str
         model = onnx.load(str(path))
     except Exception as exc:  # onnx raises DecodeError and others for a file that is not a model
         raise PatternshopError(f"{path}: not a readable ONNX model ({type(exc).__name__})") from exc
-    arrays = {init.name: numpy_helper.to_array(init) for init in model.graph.initializer}
+    arrays = {_layer_name(init.name): numpy_helper.to_array(init) for init in model.graph.initializer}
     for node in model.graph.node:  # the exporter shares equal initialisers through Identity nodes (and folds constants)
-        if node.op_type == "Identity" and node.input[0] in arrays:
-            arrays[node.output[0]] = arrays[node.input[0]]
+        if node.op_type == "Identity" and _layer_name(node.input[0]) in arrays:
+            arrays[_layer_name(node.output[0])] = arrays[_layer_name(node.input[0])]
         elif node.op_type == "Constant" and node.attribute and node.attribute[0].name == "value":
-            arrays[node.output[0]] = numpy_helper.to_array(node.attribute[0].t)
-    convs = [(node.input[1], node.input[2] if len(node.input) > 2 else None) for node in model.graph.node if node.op_type == "Conv"]
+            arrays[_layer_name(node.output[0])] = numpy_helper.to_array(node.attribute[0].t)
+    convs = [(_layer_name(node.input[1]), _layer_name(node.input[2]) if len(node.input) > 2 else None)
+             for node in model.graph.node if node.op_type == "Conv"]
     return arrays, convs
+
+
+def _layer_name(name: str) -> str:
+    """An initialiser's name as the generator's state dict spells it: models exported with the uncertainty head
+    (:class:`~patternshop_nn.networks.WithScale`) prefix every layer with ``generator.``."""
+    return name.removeprefix("generator.")
 
 
 def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 12, max_channels: int = 96,
@@ -93,7 +101,7 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
     state = generator.state_dict()
     new: dict[str, torch.Tensor] = {}
     try:
-        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation."))]
+        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale."))]
         if len(encoder) != levels:
             raise KeyError(f"{len(encoder)} encoder convolutions, expected {levels}")
         for k, (weight, bias) in enumerate(encoder):
@@ -114,7 +122,10 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
                 new[f"{branch}.ups.{k}.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.ups.{k}.1.weight"]).astype(np.float32))
             new[f"{branch}.head.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.head.1.weight"]).astype(np.float32))
             new[f"{branch}.head.2.bias"] = torch.from_numpy(arrays[f"{branch}.head.1.bias"][::4].copy())
-        if l_scale:  # the new head: its initial weights, a bias at softplus^-1 of the starting scale
+        if l_scale and "scale.1.weight" in arrays:  # the exported head, unfused as the other heads
+            new["scale.2.weight"] = torch.from_numpy(unfuse_kernel(arrays["scale.1.weight"]).astype(np.float32))
+            new["scale.2.bias"] = torch.from_numpy(arrays["scale.1.bias"][::4].copy())
+        elif l_scale:  # a new head: its initial weights, a bias at softplus^-1 of the starting scale
             new.update({name: value for name, value in state.items() if name.startswith("scale.")})
             new["scale.2.bias"] = torch.full((1,), float(np.log(np.expm1(initial_scale - L_SCALE_MIN))))
         generator.load_state_dict(new, strict=True)
@@ -178,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", help="checkpoint to write")
     parser.add_argument("--pairs", help="pair folder whose first rasters calibrate the folded batch norms")
     parser.add_argument("--calibration-items", type=int, default=64)
-    parser.add_argument("--l-scale", action="store_true", help="add the uncertainty head (Laplace scale of L)")
+    parser.add_argument("--l-scale", action="store_true", help="give the generator the uncertainty head (Laplace scale of L): the model's own if it has one, else a new one")
     parser.add_argument("--l-nll-weight", type=float, default=1.0)
 
     def run(args: argparse.Namespace) -> None:

@@ -123,6 +123,28 @@ def test_generator_rebuilt_from_onnx_computes_the_exported_function(tmp_path):
         generator_from_onnx(tmp_path / "g.onnx", levels=4, base_channels=4, max_channels=8)
 
 
+def test_a_model_exported_with_its_head_is_rebuilt_with_that_head(tmp_path):
+    """The shipped models since v6 carry the l_scale output (layers named generator.*): both outputs come back."""
+    torch.manual_seed(2)
+    module = Pix2PixModule(levels=3, base_channels=4, max_channels=8, disc_channels=4, upsample="nearest", l_scale=True)
+    module.generator.train()
+    with torch.no_grad():
+        for seed in range(3):
+            module.generator(rasters(4, 64, seed=seed) * 3)
+        module.generator.scale[-1].bias.fill_(1.0)  # a head unlike a new one (which starts near 0.05)
+    export_onnx(module, tmp_path / "g.onnx")
+    x = rasters(4, 64, seed=4)
+    session = onnxruntime.InferenceSession(str(tmp_path / "g.onnx"), providers=["CPUExecutionProvider"])
+    assert [o.name for o in session.get_outputs()] == ["map", "l_scale"]
+    expected_map, expected_scale = session.run(None, {"raster": x.numpy()})
+    rebuilt = generator_from_onnx(tmp_path / "g.onnx", levels=3, base_channels=4, max_channels=8, l_scale=True)
+    with torch.no_grad():
+        lab, scale = rebuilt.eval().forward_with_scale(x)
+    assert np.abs(lab.numpy() - expected_map).max() < 1e-4
+    assert np.abs(scale.numpy() - expected_scale).max() < 1e-5
+    assert float(scale.mean()) > 0.5
+
+
 def test_scale_head_has_its_own_learning_rate_and_the_map_layers_are_v5s():
     module = Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, upsample="nearest", l_scale=True, lr=1e-4, l_scale_lr=2e-3)
     plain = Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, upsample="nearest")
