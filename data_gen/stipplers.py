@@ -292,14 +292,26 @@ def warp_by_density(uv: np.ndarray, density: np.ndarray, domain: tuple[float, fl
     return np.stack([x_pixels, y_pixels], 1) * pixel
 
 
+def cluster_parents(density: np.ndarray, n: int, domain: tuple[float, float], children: float,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(parent of each of n points (n, 2), local mean spacing sqrt(1 / intensity) there (n,)): ``n / children``
+    density-proportional parents, each point's drawn uniformly among them (a cluster process's first stage)."""
+    parents = random_stipple(density, max(1, round(n / children)), domain, rng)
+    owner = rng.integers(len(parents), size=n)
+    spacing = local_r_max(density, n, domain, parents) * math.sqrt(SQRT3 / 2.0)
+    return parents[owner], spacing[owner]
+
+
+def _clipped(xy: np.ndarray, domain: tuple[float, float]) -> np.ndarray:
+    """``xy`` with the points leaving the domain clipped onto it."""
+    return np.clip(xy, 0.0, np.nextafter(np.asarray(domain), 0.0))
+
+
 def thomas_clusters(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
     """n points of a Thomas process: ``n / 16`` density-proportional parents, each point offset from its parent by
     a Gaussian of :data:`CLUSTER_STD_SPACINGS` local mean spacings; points leaving the domain are clipped onto it."""
-    parents = random_stipple(density, max(1, round(n / CLUSTER_POINTS)), domain, rng)
-    owner = rng.integers(len(parents), size=n)
-    spacing = local_r_max(density, n, domain, parents) * math.sqrt(SQRT3 / 2.0)  # mean spacing sqrt(1/intensity)
-    xy = parents[owner] + rng.normal(size=(n, 2)) * (CLUSTER_STD_SPACINGS * spacing[owner])[:, None]
-    return np.clip(xy, 0.0, np.nextafter(np.asarray(domain), 0.0))
+    parent, spacing = cluster_parents(density, n, domain, CLUSTER_POINTS, rng)
+    return _clipped(parent + rng.normal(size=(n, 2)) * (CLUSTER_STD_SPACINGS * spacing)[:, None], domain)
 
 
 def matern_clusters(children: float, radius_spacings: float) -> Method:
@@ -307,13 +319,10 @@ def matern_clusters(children: float, radius_spacings: float) -> Method:
     ``radius_spacings`` local mean spacings around its parent (drawn uniformly among the parents); points leaving the
     domain are clipped onto it."""
     def stipple(density: np.ndarray, n: int, domain: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
-        parents = random_stipple(density, max(1, round(n / children)), domain, rng)
-        owner = rng.integers(len(parents), size=n)
-        spacing = local_r_max(density, n, domain, parents) * math.sqrt(SQRT3 / 2.0)  # mean spacing sqrt(1/intensity)
-        radius = radius_spacings * spacing[owner] * np.sqrt(rng.random(n))
+        parent, spacing = cluster_parents(density, n, domain, children, rng)
+        radius = radius_spacings * spacing * np.sqrt(rng.random(n))
         angle = rng.uniform(0.0, 2.0 * math.pi, n)
-        xy = parents[owner] + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1)
-        return np.clip(xy, 0.0, np.nextafter(np.asarray(domain), 0.0))
+        return _clipped(parent + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1), domain)
 
     stipple.__name__ = f"matern_clusters_{children:g}_{radius_spacings:g}"
     stipple.__doc__ = (f"n points of a Matérn cluster process, {children:g} points per parent on average, uniform in "

@@ -189,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", help="checkpoint to write")
     parser.add_argument("--pairs", help="pair folder whose first rasters calibrate the folded batch norms")
     parser.add_argument("--calibration-items", type=int, default=64)
-    parser.add_argument("--l-scale", action="store_true", help="give the generator the uncertainty head (Laplace scale of L): the model's own if it has one, else a new one")
+    parser.add_argument("--l-scale", action="store_true",
+                        help="give the generator the uncertainty head (Laplace scale of L): the model's own if it has one, else a new one")
     parser.add_argument("--l-nll-weight", type=float, default=1.0)
 
     def run(args: argparse.Namespace) -> None:

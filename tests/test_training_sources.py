@@ -289,7 +289,7 @@ def test_v6_generation_config_mixes_every_source_and_keeps_the_default_key():
         PairSettings.from_config(compose_config("pairs", ["generation@_global_=v6", "+other_methods.methods.capacity_voronoi=1.0"]))
 
 
-@pytest.mark.parametrize("method", ["matern_tight", "matern_dense", "matern_loose", "matern_wide"])
+@pytest.mark.parametrize("method", [name for name in METHODS if name.startswith("matern_")])
 def test_matern_clusters_follow_the_density_cluster_and_read_their_measured_labels(method):
     xy = METHODS[method](gradient(), 800, (1.0, 40 / 60), np.random.default_rng(2))
     assert len(xy) == 800 and np.all((xy >= 0) & (xy <= (1.0, 40 / 60)))
