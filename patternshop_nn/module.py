@@ -23,6 +23,11 @@ Manual optimisation, one discriminator and one generator step per batch:
   defaults): the per-pixel terms' best answer where the points cannot pin a
   texture down is its local mean, a blur; SSIM also scores the local contrast
   and structure, so a map keeps the detail the points do carry;
+  ``ssim_min_target_std`` > 0 scores SSIM only in the windows whose target
+  varies by more than that (L/100 units), leaving flat windows to the
+  per-pixel terms (in a flat window SSIM punishes any grain); ``ssim_pool_px``
+  > 1 scores it on both maps averaged over that many pixels square, nearer
+  the scale the figures score at (a 20,000-point map's pixel is 2-5 raster px);
 * Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
   learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
   ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
@@ -42,6 +47,7 @@ import lightning as L
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from patternshop_nn.baselines import LATENT_MIN_DENSITY
 from patternshop_nn.networks import (DualBranchUNet, GANLoss, PatchDiscriminator, blurred_l1, init_weights, laplace_nll,
@@ -58,7 +64,8 @@ class Pix2PixModule(L.LightningModule):
                  lr: float = 1e-4, betas: tuple[float, float] = (0.5, 0.999), lr_halving_epochs: int = 100,
                  sample_images: int = 4, upsample: str = "transposed", lr_policy: str = "step", lr_constant_epochs: int = 0,
                  lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3,
-                 blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0, ssim_weight: float = 0.0) -> None:
+                 blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0, ssim_weight: float = 0.0,
+                 ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -97,7 +104,10 @@ class Pix2PixModule(L.LightningModule):
             parts["l_blurred_l1"] = blurred_l1(fake[:, :1], target[:, :1], self.hparams.blurred_l1_sigma_px)
             loss = loss + self.hparams.blurred_l1_weight * parts["l_blurred_l1"]
         if self.hparams.get("ssim_weight", 0.0) > 0:
-            parts["l_ssim"] = structural_similarity(fake[:, :1], target[:, :1])
+            pool = int(self.hparams.get("ssim_pool_px", 1))
+            fake_l, target_l = (F.avg_pool2d(x[:, :1], pool) if pool > 1 else x[:, :1] for x in (fake, target))
+            parts["l_ssim"] = structural_similarity(fake_l, target_l,
+                                                    min_target_std=self.hparams.get("ssim_min_target_std", 0.0))
             loss = loss + self.hparams.ssim_weight * (1.0 - parts["l_ssim"])
         return loss, parts
 

@@ -76,11 +76,15 @@ def blurred_l1(predicted: torch.Tensor, target: torch.Tensor, sigma_px: float) -
 
 
 def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_px: int = 7,
-                          data_range: float = 1.0) -> torch.Tensor:
+                          data_range: float = 1.0, min_target_std: float = 0.0) -> torch.Tensor:
     """Mean SSIM of (B, C, H, W) ``predicted`` against ``target`` (values within ``data_range``), as scikit-image's
     ``structural_similarity`` computes it by default: a uniform ``window_px`` square window, sample covariances,
     K1 0.01, K2 0.03, averaged over the windows that lie wholly inside (H, W >= ``window_px``); a scalar <= 1,
-    differentiable. The frozen and development figures score L with that function (``patternshop_nn.ood``)."""
+    differentiable. The frozen and development figures score L with that function (``patternshop_nn.ood``).
+
+    ``min_target_std`` > 0 averages only over the windows where the target's standard deviation exceeds it (in the
+    maps' units): the windows with structure to keep. In a flat window SSIM's structure term C2 / (σ² + C2) punishes
+    any grain, and most windows of training maps are flat. With no such window the result is 1, with no gradient."""
     count = window_px * window_px
     sample = count / (count - 1.0)
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
@@ -89,7 +93,10 @@ def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_
     var_t = sample * (F.avg_pool2d(target * target, window_px, 1) - mean_t * mean_t)
     cov = sample * (F.avg_pool2d(predicted * target, window_px, 1) - mean_p * mean_t)
     ssim = ((2 * mean_p * mean_t + c1) * (2 * cov + c2)) / ((mean_p ** 2 + mean_t ** 2 + c1) * (var_p + var_t + c2))
-    return ssim.mean()
+    if min_target_std <= 0:
+        return ssim.mean()
+    structured = var_t > min_target_std ** 2
+    return ssim[structured].mean() if bool(structured.any()) else ssim.new_ones(())
 
 
 def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:

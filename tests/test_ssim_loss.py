@@ -50,3 +50,33 @@ def test_the_term_reaches_only_l_and_weight_zero_leaves_the_loss_unchanged():
     fake_gradient, scale_gradient = torch.autograd.grad(parts["l_ssim"], (fake, scale), allow_unused=True)
     assert fake_gradient[:, :1].abs().sum() > 0 and fake_gradient[:, 1:].abs().sum() == 0
     assert scale_gradient is None or scale_gradient.abs().sum() == 0
+
+
+def test_ssim_over_structured_windows_ignores_grain_in_flat_windows_and_keeps_preferring_detail():
+    """With ``min_target_std`` only windows where the target varies count: grain on a flat half changes nothing."""
+    torch.manual_seed(2)
+    stripes = 0.5 + 0.2 * torch.sign(torch.sin(torch.arange(64) * 2 * np.pi / 8)).view(1, 1, 1, 64).expand(1, 1, 64, 64)
+    target = stripes.clone()
+    target[..., 32:] = 0.5  # the right half flat
+    reading = target + 0.05 * torch.randn(1, 1, 64, 64)
+    smooth_flat = reading.clone()
+    smooth_flat[..., 38:] = 0.5  # beyond the reach of the 7-px windows that hold a stripe
+    assert structural_similarity(smooth_flat, target) > structural_similarity(reading, target) + 0.1
+    masked = [structural_similarity(r, target, min_target_std=0.03) for r in (reading, smooth_flat)]
+    assert abs(float(masked[0] - masked[1])) < 1e-6  # the flat windows do not count
+    blurred = gaussian_blur(target, 3.0)
+    assert structural_similarity(reading, target, min_target_std=0.03) > structural_similarity(blurred, target, min_target_std=0.03)
+    flat = torch.full((1, 1, 16, 16), 0.5, requires_grad=True)
+    none = structural_similarity(flat + 0.1 * torch.randn(1, 1, 16, 16), torch.full((1, 1, 16, 16), 0.5), min_target_std=0.03)
+    assert float(none) == 1.0 and not none.requires_grad
+    torch.testing.assert_close(structural_similarity(reading, stripes, min_target_std=1e-4), structural_similarity(reading, stripes))
+
+
+def test_pooled_ssim_scores_both_maps_averaged_over_the_pool():
+    torch.manual_seed(3)
+    target, fake = torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32)
+    module = Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, ssim_weight=1.0, ssim_pool_px=2)
+    _, parts = module.reconstruction_loss(fake, None, target)
+    pooled = structural_similarity(torch.nn.functional.avg_pool2d(fake[:, :1], 2), torch.nn.functional.avg_pool2d(target[:, :1], 2))
+    torch.testing.assert_close(parts["l_ssim"], pooled)
+    assert abs(float(pooled - structural_similarity(fake[:, :1], target[:, :1]))) > 1e-3
