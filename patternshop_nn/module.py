@@ -28,6 +28,9 @@ Manual optimisation, one discriminator and one generator step per batch:
   per-pixel terms (in a flat window SSIM punishes any grain); ``ssim_pool_px``
   > 1 scores it on both maps averaged over that many pixels square, nearer
   the scale the figures score at (a 20,000-point map's pixel is 2-5 raster px);
+  ``ssim_max_b`` counts only windows whose target b* is at most that: regular
+  patterns (blue noise, lattices: b* < 0), whose points pin the density about
+  one spacing wide, where white noise (b* 0) cannot tell texture from grain;
 * Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
   learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
   ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
@@ -65,7 +68,7 @@ class Pix2PixModule(L.LightningModule):
                  sample_images: int = 4, upsample: str = "transposed", lr_policy: str = "step", lr_constant_epochs: int = 0,
                  lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3,
                  blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0, ssim_weight: float = 0.0,
-                 ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1) -> None:
+                 ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1, ssim_max_b: float | None = None) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -104,12 +107,20 @@ class Pix2PixModule(L.LightningModule):
             parts["l_blurred_l1"] = blurred_l1(fake[:, :1], target[:, :1], self.hparams.blurred_l1_sigma_px)
             loss = loss + self.hparams.blurred_l1_weight * parts["l_blurred_l1"]
         if self.hparams.get("ssim_weight", 0.0) > 0:
-            pool = int(self.hparams.get("ssim_pool_px", 1))
-            fake_l, target_l = (F.avg_pool2d(x[:, :1], pool) if pool > 1 else x[:, :1] for x in (fake, target))
-            parts["l_ssim"] = structural_similarity(fake_l, target_l,
-                                                    min_target_std=self.hparams.get("ssim_min_target_std", 0.0))
+            parts["l_ssim"] = self._ssim_of_l(fake, target)
             loss = loss + self.hparams.ssim_weight * (1.0 - parts["l_ssim"])
         return loss, parts
+
+    def _ssim_of_l(self, fake: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """SSIM of L against its target over the windows the ``ssim_*`` settings count (module docstring)."""
+        hp = self.hparams
+        pool = int(hp.get("ssim_pool_px", 1))
+        fake, target = (F.avg_pool2d(x, pool) if pool > 1 else x for x in (fake, target))
+        counted = None
+        if hp.get("ssim_max_b") is not None:  # b* = 255 z - 128, z the target's third channel
+            counted = 255.0 * F.avg_pool2d(target[:, 2:3], 7, 1) - 128.0 <= hp.ssim_max_b
+        return structural_similarity(fake[:, :1], target[:, :1], min_target_std=hp.get("ssim_min_target_std", 0.0),
+                                     counted=counted)
 
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams

@@ -76,7 +76,8 @@ def blurred_l1(predicted: torch.Tensor, target: torch.Tensor, sigma_px: float) -
 
 
 def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_px: int = 7,
-                          data_range: float = 1.0, min_target_std: float = 0.0) -> torch.Tensor:
+                          data_range: float = 1.0, min_target_std: float = 0.0,
+                          counted: torch.Tensor | None = None) -> torch.Tensor:
     """Mean SSIM of (B, C, H, W) ``predicted`` against ``target`` (values within ``data_range``), as scikit-image's
     ``structural_similarity`` computes it by default: a uniform ``window_px`` square window, sample covariances,
     K1 0.01, K2 0.03, averaged over the windows that lie wholly inside (H, W >= ``window_px``); a scalar <= 1,
@@ -84,7 +85,9 @@ def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_
 
     ``min_target_std`` > 0 averages only over the windows where the target's standard deviation exceeds it (in the
     maps' units): the windows with structure to keep. In a flat window SSIM's structure term C2 / (σ² + C2) punishes
-    any grain, and most windows of training maps are flat. With no such window the result is 1, with no gradient."""
+    any grain, and most windows of training maps are flat. ``counted``, a boolean (B, C, H - window_px + 1,
+    W - window_px + 1) over the windows (e.g. from ``F.avg_pool2d(x, window_px, 1)`` of another map), restricts the
+    average further. With no window left the result is 1, with no gradient."""
     count = window_px * window_px
     sample = count / (count - 1.0)
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
@@ -93,10 +96,11 @@ def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_
     var_t = sample * (F.avg_pool2d(target * target, window_px, 1) - mean_t * mean_t)
     cov = sample * (F.avg_pool2d(predicted * target, window_px, 1) - mean_p * mean_t)
     ssim = ((2 * mean_p * mean_t + c1) * (2 * cov + c2)) / ((mean_p ** 2 + mean_t ** 2 + c1) * (var_p + var_t + c2))
-    if min_target_std <= 0:
+    if min_target_std <= 0 and counted is None:
         return ssim.mean()
-    structured = var_t > min_target_std ** 2
-    return ssim[structured].mean() if bool(structured.any()) else ssim.new_ones(())
+    kept = var_t > min_target_std ** 2
+    kept = kept & counted if counted is not None else kept
+    return ssim[kept].mean() if bool(kept.any()) else ssim.new_ones(())
 
 
 def _down(in_channels: int, out_channels: int, norm: bool) -> nn.Sequential:

@@ -80,3 +80,18 @@ def test_pooled_ssim_scores_both_maps_averaged_over_the_pool():
     pooled = structural_similarity(torch.nn.functional.avg_pool2d(fake[:, :1], 2), torch.nn.functional.avg_pool2d(target[:, :1], 2))
     torch.testing.assert_close(parts["l_ssim"], pooled)
     assert abs(float(pooled - structural_similarity(fake[:, :1], target[:, :1]))) > 1e-3
+
+
+def test_ssim_limited_to_regular_patterns_ignores_white_noise_items():
+    """``ssim_max_b``: an item labelled white noise (b* 0) does not count; one labelled blue noise (b* -52) does."""
+    torch.manual_seed(4)
+    target = torch.rand(2, 3, 32, 32)
+    target[:, 1] = 128 / 255.0
+    target[0, 2], target[1, 2] = 128 / 255.0, 76 / 255.0  # b* 0 (white noise), -52 (blue noise)
+    module = Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, ssim_weight=1.0, ssim_max_b=-20.0)
+    fake = torch.rand(2, 3, 32, 32)
+    other = fake.clone()
+    other[0, 0] = torch.rand(32, 32)  # a different reading of the white-noise item only
+    ssims = [module.reconstruction_loss(x, None, target)[1]["l_ssim"] for x in (fake, other)]
+    torch.testing.assert_close(ssims[0], ssims[1])
+    torch.testing.assert_close(ssims[0], structural_similarity(fake[1:, :1], target[1:, :1]))
