@@ -17,12 +17,14 @@
    per pixel, at the same spacing in pixels, as in training.
 2. **Mirror and pad.** The raster is :func:`synthesis.raster.point_raster`
    of the points and their mirror images across each side of the domain
-   within ``border_px`` raster pixels (:class:`export.infer_config.InferConfig`),
    on a square canvas of side ``ceil((max(w, h) R + 2 border_px) / 64) * 64``
    (the U-Net needs multiples of 64): the domain's ``w R`` x ``h R`` pixels
-   start at ``(border_px, border_px)``, the rest is empty. Without the mirror
-   the network would see the pattern end at the domain's border and darken a
-   rim there (it learnt the synthesiser's thinner borders).
+   start at ``(border_px, border_px)`` (:class:`export.infer_config.InferConfig`),
+   and its mirror images fill the canvas around it, ``border_px`` before the
+   domain and the rest of the canvas after it. Without the mirror the network
+   would see the pattern end at the domain's border and darken a rim there (it
+   learnt the synthesiser's thinner borders); with an empty band beyond it, it
+   reads a density edge there and turns the last pixels of the map to grain.
 3. **Run and crop back.** The network is fully convolutional; :func:`infer_map`
    averages its outputs over symmetries of the square (each flipped or
    transposed raster's output turned back; :func:`points_to_map`: one run);
@@ -160,19 +162,23 @@ def _decode(value: str) -> object:
         return value
 
 
-def mirrored(points: PointSet, margin: float) -> np.ndarray:
-    """(m, 2) the points and their mirror images across each side of the domain within ``margin`` of it (corners too)."""
-    w, h = points.domain
-    xy = points.xy
-    copies = [xy]
-    for axis, side in ((0, w), (1, h)):
-        layer = np.concatenate(copies)
-        near_low, near_high = layer[layer[:, axis] < margin], layer[layer[:, axis] > side - margin]
-        low, high = near_low.copy(), near_high.copy()
-        low[:, axis] = -low[:, axis]
-        high[:, axis] = 2.0 * side - high[:, axis]
-        copies = [layer, low, high]
-    return np.concatenate(copies)
+def mirrored(points: PointSet, margin: float, far: tuple[float, float] | None = None) -> np.ndarray:
+    """(m, 2) the points and their images in the domain's mirror extension (reflections across its sides, repeated)
+    that lie within ``margin`` beyond its low sides (x, y < 0) and ``far`` = (x, y) beyond its high sides (default
+    ``margin``; corners too). Units of the domain; an image lies strictly inside that band, the points themselves stay."""
+    far = (margin, margin) if far is None else far
+    layer = points.xy
+    for axis, side, reach in ((0, points.domain[0], far[0]), (1, points.domain[1], far[1])):
+        images = [layer]
+        for period in range(-math.ceil(margin / (2 * side)) - 1, math.ceil((side + reach) / (2 * side)) + 1):
+            for sign in (1.0, -1.0):
+                if period == 0 and sign == 1.0:
+                    continue
+                image = layer.copy()
+                image[:, axis] = 2.0 * period * side + sign * layer[:, axis]
+                images.append(image[(image[:, axis] > -margin) & (image[:, axis] < side + reach)])
+        layer = np.concatenate(images)
+    return layer
 
 
 def pattern_raster(points: PointSet, raster_size: int, trained_points_per_ink: float | None,
@@ -185,7 +191,9 @@ def pattern_raster(points: PointSet, raster_size: int, trained_points_per_ink: f
     """
     scale, side = raster_scale(points.domain, raster_size, trained_points_per_ink, points_per_ink, border_px)
     margin = border_px / scale
-    return point_raster((mirrored(points, margin) + margin) * (scale / side), side), scale
+    reach = side / scale - margin  # from the domain's origin to the canvas's far sides, in domain units
+    far = (reach - points.domain[0], reach - points.domain[1])
+    return point_raster((mirrored(points, margin, far) + margin) * (scale / side), side), scale
 
 
 def raster_scale(domain: tuple[float, float], raster_size: int, trained_points_per_ink: float | None,

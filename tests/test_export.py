@@ -147,8 +147,26 @@ def test_pattern_scale_matches_training(tiny_onnx):
     assert scale_wide == pytest.approx(256) and wide.shape == (320, 320)
     height, width = round(0.5 * scale_wide), round(scale_wide)
     assert wide[b + 1 : b + height - 1, b + 1 : b + width - 1].mean() == pytest.approx(2_000 / (0.5 * scale_wide**2), rel=0.05)
-    assert wide[b + height + b + 1 :].sum() == 0  # below the domain and its mirrored border: empty
+    # below the domain the canvas holds the pattern mirrored across its bottom side, to the canvas's end
+    rows = np.arange(height - 2)
+    np.testing.assert_allclose(wide[b + height + rows, b + 1 : b + width - 1], wide[b + height - 1 - rows, b + 1 : b + width - 1],
+                               atol=0.02)
+    assert wide[b + height :].shape[0] > height  # repeated reflections reach the canvas end: no empty band
+    assert wide[-32:, b : b + width].mean() == pytest.approx(wide[b : b + height, b : b + width].mean(), rel=0.1)
     assert points_to_map(square, model).lab.shape == (256, 256, 3)
+
+
+def test_mirror_images_fill_the_canvas_beyond_the_domain():
+    """No empty band on the canvas's far sides: the network would read it as a density edge (grain at the map's rim)."""
+    b = DEFAULT_INFER.border_px
+    for domain in ((1.0, 1.0), (1.0, 0.3)):  # a pad of 19 px after the domain; and one wider than the domain itself
+        points = uniform_points(60_000, domain, seed=3)
+        raster, scale = pattern_raster(points, 256, 8000, 50_000)
+        inside = raster[b : b + round(domain[1] * scale), b : b + round(domain[0] * scale)].mean()
+        for band in (raster[:, -8:], raster[-8:, :], raster[:, :8], raster[:8, :]):
+            assert band.mean() == pytest.approx(inside, rel=0.1)
+    far = mirrored(PointSet(np.array([[0.1, 0.04]]), (1.0, 0.2)), 0.05, (0.05, 0.5))  # reflections repeat up to y 0.7
+    assert sorted(np.round(far[:, 1], 6)) == [-0.04, 0.04, 0.36, 0.44] and np.all(far[:, 0] == 0.1)
 
 
 def test_mirrored_points_reflect_across_each_side_and_corner():
