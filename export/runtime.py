@@ -174,9 +174,11 @@ def mirrored(points: PointSet, margin: float, far: tuple[float, float] | None = 
             for sign in (1.0, -1.0):
                 if period == 0 and sign == 1.0:
                     continue
-                image = layer.copy()
-                image[:, axis] = 2.0 * period * side + sign * layer[:, axis]
-                images.append(image[(image[:, axis] > -margin) & (image[:, axis] < side + reach)])
+                coordinate = 2.0 * period * side + sign * layer[:, axis]
+                inside = (coordinate > -margin) & (coordinate < side + reach)
+                image = layer[inside]  # a copy
+                image[:, axis] = coordinate[inside]
+                images.append(image)
         layer = np.concatenate(images)
     return layer
 
