@@ -28,6 +28,9 @@ Manual optimisation, one discriminator and one generator step per batch:
   per-pixel terms (in a flat window SSIM punishes any grain); ``ssim_pool_px``
   > 1 scores it on both maps averaged over that many pixels square, nearer
   the scale the figures score at (a 20,000-point map's pixel is 2-5 raster px);
+  ``full_res_channels`` > 0 adds a path at the raster's full resolution to
+  the L logit (:class:`~patternshop_nn.networks.DualBranchUNet`; it starts at
+  zero and learns at ``full_res_lr``, as the scale head at ``l_scale_lr``);
   ``ssim_max_b`` counts only windows whose target b* is at most that: regular
   patterns (blue noise, lattices: b* < 0), whose points pin the density about
   one spacing wide, where white noise (b* 0) cannot tell texture from grain;
@@ -68,7 +71,8 @@ class Pix2PixModule(L.LightningModule):
                  sample_images: int = 4, upsample: str = "transposed", lr_policy: str = "step", lr_constant_epochs: int = 0,
                  lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3,
                  blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0, ssim_weight: float = 0.0,
-                 ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1, ssim_max_b: float | None = None) -> None:
+                 ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1, ssim_max_b: float | None = None,
+                 full_res_channels: int = 0, full_res_lr: float = 1e-3) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -76,9 +80,11 @@ class Pix2PixModule(L.LightningModule):
         self.automatic_optimization = False
         # upsample's default, "transposed", rebuilds checkpoints whose hparams predate the option;
         # conf/model/pix2pix.yaml (and the shipped model) use resize-convolution ("nearest").
-        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample, l_scale)
+        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample, l_scale, full_res_channels)
         self.discriminator = PatchDiscriminator(4, disc_channels, disc_layers)
         init_weights(self.generator)
+        if full_res_channels > 0:
+            self.generator.zero_refinement()
         init_weights(self.discriminator)
         self.gan_loss = GANLoss(gan_mode)
         self.l1 = nn.L1Loss()
@@ -125,8 +131,10 @@ class Pix2PixModule(L.LightningModule):
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams
         head = list(self.generator.scale.parameters()) if self.generator.l_scale else []
-        rest = [p for p in self.generator.parameters() if all(p is not q for q in head)]
+        path = [*self.generator.full_res.parameters(), *self.generator.refine.parameters()] if self.generator.full_res_channels > 0 else []
+        rest = [p for p in self.generator.parameters() if all(p is not q for q in head + path)]
         groups = [{"params": rest}] + ([{"params": head, "lr": hp.get("l_scale_lr", hp.lr)}] if head else [])
+        groups += [{"params": path, "lr": hp.get("full_res_lr", hp.lr)}] if path else []
         optimizers = [torch.optim.Adam(groups, lr=hp.lr, betas=tuple(hp.betas)),
                       torch.optim.Adam(self.discriminator.parameters(), lr=hp.lr, betas=tuple(hp.betas))]
         return optimizers, [self._scheduler(opt) for opt in optimizers]

@@ -163,10 +163,15 @@ class DualBranchUNet(nn.Module):
             do not name it; the config (and the shipped model) use "nearest".
         l_scale: a head for the Laplace scale of L on the density decoder's last features
             (:meth:`forward_with_scale`); :meth:`forward` gives the map alone either way.
+        full_res_channels: > 0 adds a path at the raster's full resolution (the U-Net's finest features are at half
+            of it, behind one stride-2 convolution of the raw counts): two 3 x 3 convolutions of the raster with this
+            many channels, read with the density decoder's L logit by a 3 x 3 convolution whose output is added to
+            that logit. That convolution starts at zero, so a generator loaded without the path is unchanged.
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
-                 dropout: float = 0.0, upsample: str = "transposed", l_scale: bool = False) -> None:
+                 dropout: float = 0.0, upsample: str = "transposed", l_scale: bool = False,
+                 full_res_channels: int = 0) -> None:
         super().__init__()
         if levels < 2:
             raise ValueError(f"levels must be at least 2, got {levels}")
@@ -182,6 +187,23 @@ class DualBranchUNet(nn.Module):
         self.correlation = Decoder(widths, 2, dropout, upsample)
         if l_scale:
             self.scale = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], 1, upsample, bias=True))
+        self.full_res_channels = full_res_channels
+        if full_res_channels > 0:
+            self.full_res = nn.Sequential(nn.Conv2d(in_channels, full_res_channels, 3, 1, 1), nn.LeakyReLU(0.2),
+                                          nn.Conv2d(full_res_channels, full_res_channels, 3, 1, 1), nn.LeakyReLU(0.2))
+            self.refine = nn.Conv2d(full_res_channels + 1, 1, 3, 1, 1)
+            self.zero_refinement()
+
+    def zero_refinement(self) -> None:
+        """Set the full-resolution path's last convolution to zero: the L logit is the decoder's alone."""
+        nn.init.zeros_(self.refine.weight)
+        nn.init.zeros_(self.refine.bias)
+
+    def _refined(self, raster: torch.Tensor, l_logit: torch.Tensor) -> torch.Tensor:
+        """(B, 1, S, S) the L logit plus the full-resolution path's correction (itself without the path)."""
+        if self.full_res_channels <= 0:
+            return l_logit
+        return l_logit + self.refine(torch.cat([self.full_res(raster), l_logit], 1))
 
     def _encode(self, raster: torch.Tensor) -> list[torch.Tensor]:
         """The encoder's features, first level first."""
@@ -196,7 +218,7 @@ class DualBranchUNet(nn.Module):
     def forward(self, raster: torch.Tensor) -> torch.Tensor:
         """(B, 1, S, S) raster in [0, 1] -> (B, 3, S, S) map in [0, 1] (L/100, z_a, z_b)."""
         features = self._encode(raster)
-        return torch.sigmoid(torch.cat([self.density(features), self.correlation(features)], 1))
+        return torch.sigmoid(torch.cat([self._refined(raster, self.density(features)), self.correlation(features)], 1))
 
     def forward_with_scale(self, raster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(map (B, 3, S, S) as :meth:`forward`, Laplace scale of L/100 (B, 1, S, S) >= :data:`L_SCALE_MIN`); needs ``l_scale``."""
@@ -204,7 +226,7 @@ class DualBranchUNet(nn.Module):
             raise ValueError("this generator has no l_scale head (built with l_scale=False)")
         features = self._encode(raster)
         last = self.density.last_features(features)
-        lab = torch.sigmoid(torch.cat([self.density.head(last), self.correlation(features)], 1))
+        lab = torch.sigmoid(torch.cat([self._refined(raster, self.density.head(last)), self.correlation(features)], 1))
         return lab, F.softplus(self.scale(last)) + L_SCALE_MIN
 
 

@@ -73,18 +73,28 @@ def make_pairs(cfg: DictConfig) -> None:
         print(f"[train] pairs: {json.dumps(summary)}", file=sys.stderr)
 
 
+FULL_RES_PREFIXES = ("generator.full_res.", "generator.refine.")
+
+
 def load_weights(model: L.LightningModule, checkpoint: Path) -> None:
-    """Generator and discriminator weights of ``checkpoint`` (a Lightning checkpoint of the same architecture)."""
+    """Generator and discriminator weights of ``checkpoint`` (a Lightning checkpoint of the same architecture, or of
+    one without the full-resolution path, which then starts as built: adding zero to L)."""
     if not checkpoint.is_file():
         raise PatternshopError(f"init_from: no such checkpoint {checkpoint}")
     state = torch.load(checkpoint, map_location="cpu", weights_only=False).get("state_dict")
     if state is None:
         raise PatternshopError(f"init_from: {checkpoint} is not a Lightning checkpoint (no state_dict)")
+    new_path = [name for name in model.state_dict() if name.startswith(FULL_RES_PREFIXES) and name not in state]
     try:
-        model.load_state_dict(state)
+        model.load_state_dict(state, strict=not new_path)
+        if new_path:  # only the full-resolution path may be missing; it starts as built (adding zero to L)
+            missing = set(model.state_dict()) - set(state) - set(new_path)
+            unexpected = set(state) - set(model.state_dict())
+            if missing or unexpected:
+                raise RuntimeError(f"missing {sorted(missing)[:3]}, unexpected {sorted(unexpected)[:3]}")
     except RuntimeError as exc:
         raise PatternshopError(f"init_from: {checkpoint} does not fit the configured model ({str(exc).splitlines()[0]})") from exc
-    print(f"[train] weights from {checkpoint}", file=sys.stderr)
+    print(f"[train] weights from {checkpoint}" + (" (the full-resolution path starts at zero)" if new_path else ""), file=sys.stderr)
 
 
 def train(cfg: DictConfig) -> dict:

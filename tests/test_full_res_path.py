@@ -1,0 +1,71 @@
+"""The optional full-resolution path of the density decoder (``model.full_res_channels``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnxruntime
+import pytest
+import torch
+
+from patternshop_nn.module import Pix2PixModule
+from patternshop_nn.onnx_export import export_onnx
+from patternshop_nn.train import load_weights
+from synthesis.errors import PatternshopError
+
+
+def tiny(full_res: int) -> Pix2PixModule:
+    torch.manual_seed(0)
+    return Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, upsample="nearest", l_scale=True,
+                         full_res_channels=full_res)
+
+
+def rasters() -> torch.Tensor:
+    return (torch.rand(2, 1, 64, 64, generator=torch.Generator().manual_seed(1)) < 0.1).float()
+
+
+def test_a_model_without_the_path_loads_into_one_with_it_unchanged_and_the_path_then_learns(tmp_path):
+    plain = tiny(0)
+    checkpoint = tmp_path / "plain.ckpt"
+    torch.save({"state_dict": plain.state_dict()}, checkpoint)
+    refined = tiny(8)
+    load_weights(refined, checkpoint)
+    x = rasters()
+    with torch.no_grad():
+        for a, b in zip(plain.generator.eval().forward_with_scale(x), refined.generator.eval().forward_with_scale(x), strict=True):
+            torch.testing.assert_close(a, b)
+    # the zero convolution gets a gradient at once, so training moves L through the path
+    lab, scale = refined.generator.train().forward_with_scale(x)
+    lab[:, :1].sum().backward()
+    assert refined.generator.refine.weight.grad.abs().sum() > 0
+    # anything else missing is still refused
+    broken = {k: v for k, v in plain.state_dict().items() if not k.startswith("generator.first.")}
+    torch.save({"state_dict": broken}, tmp_path / "broken.ckpt")
+    with pytest.raises(PatternshopError, match="does not fit"):
+        load_weights(tiny(8), tmp_path / "broken.ckpt")
+
+
+def test_the_path_changes_l_only_and_is_exported(tmp_path):
+    net = tiny(8).generator.eval()
+    torch.nn.init.normal_(net.refine.weight, 0.0, 0.5)
+    x = rasters()
+    with torch.no_grad():
+        lab, scale = net.forward_with_scale(x)
+        net.full_res_channels = 0  # the same network read without its path
+        base = net.forward_with_scale(x)
+        net.full_res_channels = 8
+    assert (lab[:, :1] - base[0][:, :1]).abs().max() > 1e-3
+    torch.testing.assert_close(lab[:, 1:], base[0][:, 1:])
+    torch.testing.assert_close(scale, base[1])
+    export_onnx(net, tmp_path / "full_res.onnx", {"points_per_ink": 8000})
+    session = onnxruntime.InferenceSession(str(tmp_path / "full_res.onnx"), providers=["CPUExecutionProvider"])
+    exported, _ = session.run(None, {"raster": x.numpy()})
+    assert np.abs(exported - lab.numpy()).max() < 1e-4
+
+
+def test_the_path_learns_at_its_own_rate():
+    module = Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, l_scale=True, full_res_channels=4,
+                           lr=3e-5, l_scale_lr=1e-3, full_res_lr=2e-3)
+    (generator_optimizer, _), _ = module.configure_optimizers()
+    rates = {id(p): group["lr"] for group in generator_optimizer.param_groups for p in group["params"]}
+    assert rates[id(module.generator.refine.weight)] == rates[id(module.generator.full_res[0].weight)] == 2e-3
+    assert rates[id(module.generator.first.weight)] == 3e-5 and len(rates) == len(list(module.generator.parameters()))
