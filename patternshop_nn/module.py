@@ -28,12 +28,12 @@ Manual optimisation, one discriminator and one generator step per batch:
   per-pixel terms (in a flat window SSIM punishes any grain); ``ssim_pool_px``
   > 1 scores it on both maps averaged over that many pixels square, nearer
   the scale the figures score at (a 20,000-point map's pixel is 2-5 raster px);
-  ``full_res_channels`` > 0 adds a path at the raster's full resolution to
-  the L logit (:class:`~patternshop_nn.networks.DualBranchUNet`; it starts at
-  zero and learns at ``full_res_lr``, as the scale head at ``l_scale_lr``);
   ``ssim_max_b`` counts only windows whose target b* is at most that: regular
   patterns (blue noise, lattices: b* < 0), whose points pin the density about
   one spacing wide, where white noise (b* 0) cannot tell texture from grain;
+  ``full_res_channels`` > 0 adds a path at the raster's full resolution to
+  the L logit (:class:`~patternshop_nn.networks.DualBranchUNet`; it starts at
+  zero and learns at ``full_res_lr``, as the scale head at ``l_scale_lr``);
 * Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
   learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
   ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
@@ -60,6 +60,7 @@ from patternshop_nn.networks import (DualBranchUNet, GANLoss, PatchDiscriminator
                                      structural_similarity)
 
 LR_POLICIES = ("step", "linear")
+SSIM_WINDOW_PX = 7  # the SSIM term's window (scikit-image's default, as the figures score)
 
 
 class Pix2PixModule(L.LightningModule):
@@ -124,9 +125,9 @@ class Pix2PixModule(L.LightningModule):
         fake, target = (F.avg_pool2d(x, pool) if pool > 1 else x for x in (fake, target))
         counted = None
         if hp.get("ssim_max_b") is not None:  # b* = 255 z - 128, z the target's third channel
-            counted = 255.0 * F.avg_pool2d(target[:, 2:3], 7, 1) - 128.0 <= hp.ssim_max_b
-        return structural_similarity(fake[:, :1], target[:, :1], min_target_std=hp.get("ssim_min_target_std", 0.0),
-                                     counted=counted)
+            counted = 255.0 * F.avg_pool2d(target[:, 2:3], SSIM_WINDOW_PX, 1) - 128.0 <= hp.ssim_max_b
+        return structural_similarity(fake[:, :1], target[:, :1], SSIM_WINDOW_PX,
+                                     min_target_std=hp.get("ssim_min_target_std", 0.0), counted=counted)
 
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams
