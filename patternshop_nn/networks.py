@@ -98,7 +98,7 @@ def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_
     ssim = ((2 * mean_p * mean_t + c1) * (2 * cov + c2)) / ((mean_p ** 2 + mean_t ** 2 + c1) * (var_p + var_t + c2))
     if min_target_std <= 0 and counted is None:
         return ssim.mean()
-    kept = var_t > min_target_std ** 2
+    kept = var_t > min_target_std ** 2 if min_target_std > 0 else torch.ones_like(var_t, dtype=torch.bool)
     kept = kept & counted if counted is not None else kept
     return ssim[kept].mean() if bool(kept.any()) else ssim.new_ones(())
 

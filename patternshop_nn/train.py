@@ -84,17 +84,16 @@ def load_weights(model: L.LightningModule, checkpoint: Path) -> None:
     state = torch.load(checkpoint, map_location="cpu", weights_only=False).get("state_dict")
     if state is None:
         raise PatternshopError(f"init_from: {checkpoint} is not a Lightning checkpoint (no state_dict)")
-    new_path = [name for name in model.state_dict() if name.startswith(FULL_RES_PREFIXES) and name not in state]
     try:
-        model.load_state_dict(state, strict=not new_path)
-        if new_path:  # only the full-resolution path may be missing; it starts as built (adding zero to L)
-            missing = set(model.state_dict()) - set(state) - set(new_path)
-            unexpected = set(state) - set(model.state_dict())
-            if missing or unexpected:
-                raise RuntimeError(f"missing {sorted(missing)[:3]}, unexpected {sorted(unexpected)[:3]}")
-    except RuntimeError as exc:
+        keys = model.load_state_dict(state, strict=False)
+    except RuntimeError as exc:  # shapes that differ
         raise PatternshopError(f"init_from: {checkpoint} does not fit the configured model ({str(exc).splitlines()[0]})") from exc
-    print(f"[train] weights from {checkpoint}" + (" (the full-resolution path starts at zero)" if new_path else ""), file=sys.stderr)
+    missing = [name for name in keys.missing_keys if not name.startswith(FULL_RES_PREFIXES)]
+    if missing or keys.unexpected_keys:  # only the full-resolution path may be missing: it starts as built (adding zero to L)
+        raise PatternshopError(f"init_from: {checkpoint} does not fit the configured model "
+                               f"(missing {missing[:3]}, unexpected {keys.unexpected_keys[:3]})")
+    new_path = " (the full-resolution path starts at zero)" if keys.missing_keys else ""
+    print(f"[train] weights from {checkpoint}{new_path}", file=sys.stderr)
 
 
 def train(cfg: DictConfig) -> dict:
