@@ -14,7 +14,8 @@ read back and inverted:
 * every fused up-sampling convolution (:class:`patternshop_nn.networks.NearestUpConv`, four 2x2 phase kernels, 16
   sums of the 9 taps of the 3x3 kernel) is solved back to its 3x3 kernel by least squares (exact: the sums are
   consistent), its bias is every fourth of the exported one;
-* the decoders' batch norms and the other convolutions are copied.
+* the decoders' batch norms and the other convolutions (the full-resolution path's included, where the model has
+  one: ``model.full_res_channels``) are copied.
 
 With ``l_scale=True`` the generator gets the Laplace-scale head: the exported one where the model has it (its
 ``l_scale`` output; such models name their layers ``generator.*``), else initialised as new layers are
@@ -87,21 +88,35 @@ def _layer_name(name: str) -> str:
     return name.removeprefix("generator.")
 
 
+FULL_RES_LAYERS = ("full_res.0", "full_res.2", "refine")  # the full-resolution path's convolutions, copied as they are
+
+
+def full_res_channels(path: str | Path) -> int:
+    """Width of the exported model's full-resolution path (0 where it has none)."""
+    return _full_res_width(_onnx_layers(Path(path))[0])
+
+
+def _full_res_width(arrays: dict[str, np.ndarray]) -> int:
+    return int(arrays["full_res.0.weight"].shape[0]) if "full_res.0.weight" in arrays else 0
+
+
 def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 12, max_channels: int = 96,
                         l_scale: bool = False, initial_scale: float = INITIAL_SCALE) -> DualBranchUNet:
-    """A nearest-upsampling :class:`DualBranchUNet` whose eval-mode function is the exported model's (see module docstring).
+    """A nearest-upsampling :class:`DualBranchUNet` whose eval-mode function is the exported model's (see module docstring);
+    it has the model's full-resolution path where the model has one.
 
     Raises:
         PatternshopError: the file is not an exported generator of this architecture.
     """
     path = Path(path)
     arrays, convs = _onnx_layers(path)
-    generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale).eval()
+    path_width = _full_res_width(arrays)
+    generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, path_width).eval()
     init_weights(generator)
     state = generator.state_dict()
     new: dict[str, torch.Tensor] = {}
     try:
-        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale."))]
+        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *FULL_RES_LAYERS))]
         if len(encoder) != levels:
             raise KeyError(f"{len(encoder)} encoder convolutions, expected {levels}")
         for k, (weight, bias) in enumerate(encoder):
@@ -122,6 +137,9 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
                 new[f"{branch}.ups.{k}.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.ups.{k}.1.weight"]).astype(np.float32))
             new[f"{branch}.head.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.head.1.weight"]).astype(np.float32))
             new[f"{branch}.head.2.bias"] = torch.from_numpy(arrays[f"{branch}.head.1.bias"][::4].copy())
+        if path_width:
+            new.update({f"{layer}.{field}": torch.from_numpy(arrays[f"{layer}.{field}"].copy())
+                        for layer in FULL_RES_LAYERS for field in ("weight", "bias")})
         if l_scale and "scale.1.weight" in arrays:  # the exported head, unfused as the other heads
             new["scale.2.weight"] = torch.from_numpy(unfuse_kernel(arrays["scale.1.weight"]).astype(np.float32))
             new["scale.2.bias"] = torch.from_numpy(arrays["scale.1.bias"][::4].copy())
@@ -169,7 +187,7 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
 
     from patternshop_nn.module import Pix2PixModule
 
-    module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest"})
+    module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": full_res_channels(onnx_path)})
     hp = module.hparams
     generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, module.generator.l_scale)
     if rasters is not None:

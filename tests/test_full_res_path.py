@@ -9,6 +9,7 @@ import torch
 
 from patternshop_nn.module import Pix2PixModule
 from patternshop_nn.onnx_export import export_onnx
+from patternshop_nn.onnx_import import generator_from_onnx
 from patternshop_nn.train import load_weights
 from synthesis.errors import PatternshopError
 
@@ -44,7 +45,7 @@ def test_a_model_without_the_path_loads_into_one_with_it_unchanged_and_the_path_
         load_weights(tiny(8), tmp_path / "broken.ckpt")
 
 
-def test_the_path_changes_l_only_and_is_exported(tmp_path):
+def test_the_path_changes_l_only_is_exported_and_rebuilt_from_the_export(tmp_path):
     net = tiny(8).generator.eval()
     torch.nn.init.normal_(net.refine.weight, 0.0, 0.5)
     x = rasters()
@@ -60,6 +61,10 @@ def test_the_path_changes_l_only_and_is_exported(tmp_path):
     session = onnxruntime.InferenceSession(str(tmp_path / "full_res.onnx"), providers=["CPUExecutionProvider"])
     exported, _ = session.run(None, {"raster": x.numpy()})
     assert np.abs(exported - lab.numpy()).max() < 1e-4
+    rebuilt = generator_from_onnx(tmp_path / "full_res.onnx", base_channels=4, max_channels=8, l_scale=True)
+    assert rebuilt.full_res_channels == 8
+    with torch.no_grad():
+        torch.testing.assert_close(rebuilt.forward_with_scale(x)[0], lab, atol=1e-4, rtol=0)
 
 
 def test_the_path_learns_at_its_own_rate():
