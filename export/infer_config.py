@@ -37,13 +37,12 @@ class InferConfig:
         convert_symmetries: the same for ``convert``, whose target is 10 files/s on two workers: one pass per file.
         smoothing_tolerance: k of :func:`export.uncertainty.smooth_by_uncertainty`: a pixel takes a Gaussian
             smoothing while the change it makes stays within k times the predicted Laplace scale of its density.
-            Chosen for the shipped model (v14) on the 12 development stipplings (``bench/bench_uncertainty.py
+            Chosen for the shipped model (v15) on the 12 development stipplings (``bench/bench_uncertainty.py
             --tolerances 0.15,0.25,0.35,0.5 --cases``: the four development pictures of ``patternshop_nn.ood`` by
-            its three stipplers, seed 1000; 2 symmetries): mean SSIM 0.626 unsmoothed, 0.641, 0.643, 0.641, 0.634 at
-            k 0.15, 0.25, 0.35, 0.5; MAE 4.72, 4.67, 4.69, 4.72, 4.83; better than the oracle KDE in SSIM and MAE in
-            8, 9, 8, 9, 8 of 12: 0.25, the best SSIM among the k whose MAE is within 0.02 of the best (0.15, 0.25).
-            The best k moves with training (v6b 0.35, v9b 0.25, v9 0.35, v10 0.25, v11 0.25, v12 0.25;
-            docs/network.md): re-measure it for each model.
+            its three stipplers, seed 1000; 2 symmetries): mean SSIM 0.628 unsmoothed, 0.647, 0.651, 0.648, 0.640 at
+            k 0.15, 0.25, 0.35, 0.5; MAE 4.66, 4.59, 4.59, 4.64, 4.78; better than the oracle KDE in SSIM and MAE in
+            8, 9, 10, 9, 8 of 12: 0.25, the best SSIM and MAE. The best k moves with training (v6b 0.35, v9b 0.25,
+            v9 0.35, v10 0.25, v11 0.25, v12 0.25, v14 0.25; docs/network.md): re-measure it for each model.
         smoothing_start_px: the first smoothing level's Gaussian (map px); each next level doubles it. On 256-px
             maps a 1-16 px KDE is the best one for the evaluation's stipplings (``patternshop_nn.ood``, oracle
             bandwidths), so the ladder spans them.

@@ -11,23 +11,23 @@ The reduced evaluation reuses ``python -m patternshop_nn.evaluate``'s machinery 
 * Poisson, jittered-grid and Thomas patterns at density 1.0 read by the network alone (``ood.infer``,
   ``raw``: one run, no calibration), the share of pixels whose nearest preset is the right one.
 
-Measured with the shipped patternshop-procedural-v14 (ONNX Runtime, one thread; the functions below
+Measured with the shipped patternshop-procedural-v15 (ONNX Runtime, one thread; the functions below
 on the same pairs, the degraded copies made as in :func:`test_a_degraded_model_fails_the_headline_figures`):
 
 ==========================================  ========  =========  =====================================
 figure                                      measured  bound      degraded copies (weights x (1 + s N))
 ==========================================  ========  =========  =====================================
-procedural density MAE (KDE 0.1005)         0.0672    <= 0.0726  s 0.02: 0.0702; 0.05: 0.0938
-procedural latent MAE (palette 0.1220)      0.1310    <= 0.1415  s 0.05: 0.1368 (not a discriminating figure)
-other methods: density MAE                  0.0423    <= 0.0457  s 0.02: 0.0435; 0.05: 0.0637
-other methods: latent MAE                   0.0062    <= 0.0084  s 0.02: 0.0223; 0.05: 0.0649
-stationary, network alone: right preset     1.0       >= 0.95    s 0.05: 1.0
+procedural density MAE (KDE 0.1005)         0.0687    <= 0.0742  s 0.02: 0.0798; 0.05: 0.1153
+procedural latent MAE (palette 0.1220)      0.1331    <= 0.1437  s 0.05: 0.1419 (not a discriminating figure)
+other methods: density MAE                  0.0456    <= 0.0492  s 0.02: 0.0506; 0.05: 0.0802
+other methods: latent MAE                   0.0067    <= 0.0090  s 0.02: 0.0231; 0.05: 0.0746
+stationary, network alone: right preset     1.0       >= 0.95    s 0.05: >= 0.9999
 ==========================================  ========  =========  =====================================
 
-The MAE bounds are 8 % above the measurement (the other-method latent MAE, a small figure, 35 %). v14 reads the
-synthesised procedural pairs better than v12 (0.0672 against v12's 0.0723 and v5's 0.0676 on these 4 pairs; see
-default.eval.json for the 24 and docs/network.md "Model v14") and the other methods' density better, their latent a
-little worse (density 0.0423, latent 0.0062; v12 0.0442, 0.0055; v5's latent 0.0124). The per-pair figures of the 4 procedural pairs
+The MAE bounds are 8 % above the measurement (the other-method latent MAE, a small figure, 35 %). v15 reads the
+synthesised procedural pairs better than v12 (0.0687 against v12's 0.0723 and v5's 0.0676 on these 4 pairs; v14
+0.0672; see default.eval.json for the 24 and docs/network.md "Model v15") and the other methods' density and latent
+a little worse (density 0.0456, latent 0.0067; v12 0.0442, 0.0055; v5's latent 0.0124). The per-pair figures of the 4 procedural pairs
 agree with default.eval.json's (made by the same code) to 1e-4, asserted to 0.003 and 0.004.
 """
 
@@ -52,10 +52,10 @@ HELD_OUT_SEED = 1000  # python -m patternshop_nn.evaluate's default, and the rec
 PROCEDURAL_PAIRS, OTHER_PAIRS = 4, 8
 PROCESSES = ("poisson", "jitter", "thomas")  # at density 1.0; Poisson-disk and Lloyd cost 26 s and 6 s to make
 BOUNDS = {  # figure: (bound, "max" or "min"); measurements in the module docstring
-    "procedural_density_mae": (0.0726, "max"),
-    "procedural_latent_mae": (0.1415, "max"),
-    "other_density_mae": (0.0457, "max"),
-    "other_latent_mae": (0.0084, "max"),
+    "procedural_density_mae": (0.0742, "max"),
+    "procedural_latent_mae": (0.1437, "max"),
+    "other_density_mae": (0.0492, "max"),
+    "other_latent_mae": (0.0090, "max"),
     **{f"right_preset_{process}": (0.95, "min") for process in PROCESSES},
 }
 RECORDED = json.loads((DEFAULT_MODEL.parent / "default.eval.json").read_text())
@@ -101,8 +101,8 @@ def test_shipped_model_keeps_its_headline_figures(held_out: tuple[Path, Path]) -
     # about as good as the network on these 4 pairs, so the bound only guards against the network falling clearly behind
     # it. Measured gain: +0.22 against the old CNN-feature decoding; -0.042 with the PCF decoding; -0.125 since the
     # synthesiser's nearest-neighbour term (the pairs' patterns come closer to the palette's exemplars: the baseline's
-    # latent MAE 0.125 -> 0.119, the network's, trained on the older synthesiser's pairs, 0.130 -> 0.134). v14: density
-    # gain 0.331 (v12 0.281, v11 0.248, v10 0.271, v5 0.34), latent gain -0.074 (v12 -0.107).
+    # latent MAE 0.125 -> 0.119, the network's, trained on the older synthesiser's pairs, 0.130 -> 0.134). v15: density
+    # gain 0.316 (v14 0.331, v12 0.281, v11 0.248, v10 0.271, v5 0.34), latent gain -0.091 (v14 -0.074, v12 -0.107).
     assert procedural["density_gain_vs_kde"] > 0.22 and procedural["latent_gain_vs_baseline"] > -0.16
     # the recorded evaluation is this model's: its first pairs score, on average, what default.eval.json says. The pairs
     # are remade by today's synthesiser, so single pairs move with it (tone term and ink hold: up to 0.0041 density
@@ -113,7 +113,7 @@ def test_shipped_model_keeps_its_headline_figures(held_out: tuple[Path, Path]) -
 
 
 def test_a_degraded_model_fails_the_headline_figures(held_out: tuple[Path, Path], tmp_path: Path) -> None:
-    """The shipped weights each multiplied by (1 + 0.05 N(0, 1)): measured other-method density 0.0637, latent 0.0649 (v14)."""
+    """The shipped weights each multiplied by (1 + 0.05 N(0, 1)): measured other-method density 0.0802, latent 0.0746 (v15)."""
     import onnx
     from onnx import numpy_helper
 
