@@ -66,7 +66,8 @@ def resolve_model(path: str | None, tmp: Path) -> tuple[Path, dict, torch.nn.Mod
 
 
 def onnx_weights(path: Path) -> dict[str, np.ndarray]:
-    return {init.name: numpy_helper.to_array(init) for init in onnx.load(str(path)).graph.initializer}
+    """Initialisers by the generator's parameter names (models with ``l_scale`` prefix theirs with ``generator.``)."""
+    return {init.name.removeprefix("generator."): numpy_helper.to_array(init) for init in onnx.load(str(path)).graph.initializer}
 
 
 def same_weights(generator: torch.nn.Module, weights: dict[str, np.ndarray]) -> bool:
@@ -101,6 +102,14 @@ def torch_generator(model: OnnxModel, exported_from: torch.nn.Module | None) -> 
     levels = int((model.metadata.get("generator") or {}).get("levels") or 6)
     upsample = (model.metadata.get("generator") or {}).get("upsample") or "transposed"
     base, widest = width_of(weights, levels)
+    if upsample == "nearest":  # the exported function rebuilt exactly (patternshop_nn.onnx_import)
+        from patternshop_nn.onnx_import import generator_from_onnx
+
+        generator = generator_from_onnx(model.path, levels, base, widest, l_scale="scale.1.weight" in weights)
+        info.update({"source": f"{model.path.name} rebuilt by patternshop_nn.onnx_import.generator_from_onnx",
+                     "same_weights_as_onnx": True})
+        info.pop("note", None)
+        return generator.eval(), info
     torch.manual_seed(0)
     generator = DualBranchUNet(1, levels, base, widest, upsample=upsample).eval()
     parameters = sum(p.numel() for p in generator.parameters())
