@@ -37,6 +37,7 @@ from patternshop_nn.networks import L_SCALE_MIN, DualBranchUNet, init_weights
 from synthesis.errors import PatternshopError, run_module_cli
 
 INITIAL_SCALE = 0.05  # the new l_scale head's starting scale (L/100): about the shipped model's held-out density MAE
+FULL_RES_LAYERS = ("full_res.0", "full_res.2", "refine")  # the full-resolution path's convolutions, copied as they are
 
 
 def _taps_matrix() -> np.ndarray:
@@ -86,9 +87,6 @@ def _layer_name(name: str) -> str:
     """An initialiser's name as the generator's state dict spells it: models exported with the uncertainty head
     (:class:`~patternshop_nn.networks.WithScale`) prefix every layer with ``generator.``."""
     return name.removeprefix("generator.")
-
-
-FULL_RES_LAYERS = ("full_res.0", "full_res.2", "refine")  # the full-resolution path's convolutions, copied as they are
 
 
 def full_res_channels(path: str | Path) -> int:
