@@ -132,7 +132,7 @@ class Pix2PixModule(L.LightningModule):
     def configure_optimizers(self):  # noqa: ANN201 - Lightning's optimiser/scheduler lists
         hp = self.hparams
         head = list(self.generator.scale.parameters()) if self.generator.l_scale else []
-        path = [*self.generator.full_res.parameters(), *self.generator.refine.parameters()] if self.generator.full_res_channels > 0 else []
+        path = self.generator.full_res_parameters()
         rest = [p for p in self.generator.parameters() if all(p is not q for q in head + path)]
         groups = [{"params": rest}] + ([{"params": head, "lr": hp.get("l_scale_lr", hp.lr)}] if head else [])
         groups += [{"params": path, "lr": hp.get("full_res_lr", hp.lr)}] if path else []

@@ -98,8 +98,9 @@ def structural_similarity(predicted: torch.Tensor, target: torch.Tensor, window_
     ssim = ((2 * mean_p * mean_t + c1) * (2 * cov + c2)) / ((mean_p ** 2 + mean_t ** 2 + c1) * (var_p + var_t + c2))
     if min_target_std <= 0 and counted is None:
         return ssim.mean()
-    kept = var_t > min_target_std ** 2 if min_target_std > 0 else torch.ones_like(var_t, dtype=torch.bool)
-    kept = kept & counted if counted is not None else kept
+    kept = counted if counted is not None else torch.ones_like(var_t, dtype=torch.bool)
+    if min_target_std > 0:
+        kept = kept & (var_t > min_target_std ** 2)
     return ssim[kept].mean() if bool(kept.any()) else ssim.new_ones(())
 
 
@@ -193,6 +194,12 @@ class DualBranchUNet(nn.Module):
                                           nn.Conv2d(full_res_channels, full_res_channels, 3, 1, 1), nn.LeakyReLU(0.2))
             self.refine = nn.Conv2d(full_res_channels + 1, 1, 3, 1, 1)
             self.zero_refinement()
+
+    FULL_RES_MODULES = ("full_res", "refine")  # the full-resolution path's submodules (names in the state dict)
+
+    def full_res_parameters(self) -> list[nn.Parameter]:
+        """The full-resolution path's parameters (none without the path)."""
+        return [p for name, p in self.named_parameters() if name.startswith(self.FULL_RES_MODULES)]
 
     def zero_refinement(self) -> None:
         """Set the full-resolution path's last convolution to zero: the L logit is the decoder's alone."""

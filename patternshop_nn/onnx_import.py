@@ -37,7 +37,6 @@ from patternshop_nn.networks import L_SCALE_MIN, DualBranchUNet, init_weights
 from synthesis.errors import PatternshopError, run_module_cli
 
 INITIAL_SCALE = 0.05  # the new l_scale head's starting scale (L/100): about the shipped model's held-out density MAE
-FULL_RES_LAYERS = ("full_res.0", "full_res.2", "refine")  # the full-resolution path's convolutions, copied as they are
 
 
 def _taps_matrix() -> np.ndarray:
@@ -89,15 +88,6 @@ def _layer_name(name: str) -> str:
     return name.removeprefix("generator.")
 
 
-def full_res_channels(path: str | Path) -> int:
-    """Width of the exported model's full-resolution path (0 where it has none)."""
-    return _full_res_width(_onnx_layers(Path(path))[0])
-
-
-def _full_res_width(arrays: dict[str, np.ndarray]) -> int:
-    return int(arrays["full_res.0.weight"].shape[0]) if "full_res.0.weight" in arrays else 0
-
-
 def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 12, max_channels: int = 96,
                         l_scale: bool = False, initial_scale: float = INITIAL_SCALE) -> DualBranchUNet:
     """A nearest-upsampling :class:`DualBranchUNet` whose eval-mode function is the exported model's (see module docstring);
@@ -108,13 +98,13 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
     """
     path = Path(path)
     arrays, convs = _onnx_layers(path)
-    path_width = _full_res_width(arrays)
+    path_width = int(arrays["full_res.0.weight"].shape[0]) if "full_res.0.weight" in arrays else 0
     generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, path_width).eval()
     init_weights(generator)
     state = generator.state_dict()
     new: dict[str, torch.Tensor] = {}
     try:
-        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *FULL_RES_LAYERS))]
+        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *DualBranchUNet.FULL_RES_MODULES))]
         if len(encoder) != levels:
             raise KeyError(f"{len(encoder)} encoder convolutions, expected {levels}")
         for k, (weight, bias) in enumerate(encoder):
@@ -135,9 +125,8 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
                 new[f"{branch}.ups.{k}.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.ups.{k}.1.weight"]).astype(np.float32))
             new[f"{branch}.head.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.head.1.weight"]).astype(np.float32))
             new[f"{branch}.head.2.bias"] = torch.from_numpy(arrays[f"{branch}.head.1.bias"][::4].copy())
-        if path_width:
-            new.update({f"{layer}.{field}": torch.from_numpy(arrays[f"{layer}.{field}"].copy())
-                        for layer in FULL_RES_LAYERS for field in ("weight", "bias")})
+        new.update({name: torch.from_numpy(arrays[name].copy()) for name in state
+                    if name.startswith(DualBranchUNet.FULL_RES_MODULES)})  # plain convolutions, copied
         if l_scale and "scale.1.weight" in arrays:  # the exported head, unfused as the other heads
             new["scale.2.weight"] = torch.from_numpy(unfuse_kernel(arrays["scale.1.weight"]).astype(np.float32))
             new["scale.2.bias"] = torch.from_numpy(arrays["scale.1.bias"][::4].copy())
@@ -185,9 +174,12 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
 
     from patternshop_nn.module import Pix2PixModule
 
-    module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": full_res_channels(onnx_path)})
+    module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest"})
     hp = module.hparams
     generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, module.generator.l_scale)
+    if generator.full_res_channels:  # the module (and its recorded hyper-parameters) take the exported model's path
+        module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": generator.full_res_channels})
+        hp = module.hparams
     if rasters is not None:
         calibrate_folded_norms(generator, rasters)
     module.generator.load_state_dict(generator.state_dict())

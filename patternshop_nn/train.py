@@ -34,6 +34,7 @@ from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
 from data_gen.provenance import CONF_DIR
+from patternshop_nn.networks import DualBranchUNet
 from synthesis.errors import PatternshopError
 
 
@@ -73,9 +74,6 @@ def make_pairs(cfg: DictConfig) -> None:
         print(f"[train] pairs: {json.dumps(summary)}", file=sys.stderr)
 
 
-FULL_RES_PREFIXES = ("generator.full_res.", "generator.refine.")
-
-
 def load_weights(model: L.LightningModule, checkpoint: Path) -> None:
     """Generator and discriminator weights of ``checkpoint`` (a Lightning checkpoint of the same architecture, or of
     one without the full-resolution path, which then starts as built: adding zero to L)."""
@@ -88,7 +86,8 @@ def load_weights(model: L.LightningModule, checkpoint: Path) -> None:
         keys = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:  # shapes that differ
         raise PatternshopError(f"init_from: {checkpoint} does not fit the configured model ({str(exc).splitlines()[0]})") from exc
-    missing = [name for name in keys.missing_keys if not name.startswith(FULL_RES_PREFIXES)]
+    path = tuple(f"generator.{name}." for name in DualBranchUNet.FULL_RES_MODULES)
+    missing = [name for name in keys.missing_keys if not name.startswith(path)]
     if missing or keys.unexpected_keys:  # only the full-resolution path may be missing: it starts as built (adding zero to L)
         raise PatternshopError(f"init_from: {checkpoint} does not fit the configured model "
                                f"(missing {missing[:3]}, unexpected {keys.unexpected_keys[:3]})")

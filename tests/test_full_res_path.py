@@ -9,7 +9,7 @@ import torch
 
 from patternshop_nn.module import Pix2PixModule
 from patternshop_nn.onnx_export import export_onnx
-from patternshop_nn.onnx_import import generator_from_onnx
+from patternshop_nn.onnx_import import checkpoint_from_onnx, generator_from_onnx
 from patternshop_nn.train import load_weights
 from synthesis.errors import PatternshopError
 
@@ -65,6 +65,23 @@ def test_the_path_changes_l_only_is_exported_and_rebuilt_from_the_export(tmp_pat
     assert rebuilt.full_res_channels == 8
     with torch.no_grad():
         torch.testing.assert_close(rebuilt.forward_with_scale(x)[0], lab, atol=1e-4, rtol=0)
+
+
+def test_a_checkpoint_rebuilt_from_an_export_with_the_path_exports_the_same_function(tmp_path):
+    """python -m patternshop_nn.onnx_import's checkpoint of a model with the path: the module and its recorded
+    hyper-parameters take the path, so `patternshop export` of it gives the exported model back."""
+    net = tiny(8).generator.eval()
+    torch.nn.init.normal_(net.refine.weight, 0.0, 0.5)
+    export_onnx(net, tmp_path / "full_res.onnx", {"points_per_ink": 8000})
+    checkpoint = checkpoint_from_onnx(tmp_path / "full_res.onnx", tmp_path / "rebuilt.ckpt", base_channels=4,
+                                      max_channels=8, disc_channels=4, l_scale=True)
+    assert torch.load(checkpoint, weights_only=False)["hyper_parameters"]["full_res_channels"] == 8
+    export_onnx(checkpoint, tmp_path / "again.onnx", {"points_per_ink": 8000})
+    x = rasters().numpy()
+    first, again = (onnxruntime.InferenceSession(str(tmp_path / name), providers=["CPUExecutionProvider"]).run(None, {"raster": x})
+                    for name in ("full_res.onnx", "again.onnx"))
+    for a, b in zip(first, again, strict=True):
+        assert np.abs(a - b).max() < 1e-5
 
 
 def test_the_path_learns_at_its_own_rate():
