@@ -6,7 +6,10 @@
    Trainer of ``trainer=cpu|gpu|ddp``, checkpointing into ``${run_dir}/checkpoints``
    (``last.ckpt`` every ``checkpoint_every_n_steps`` steps and at epoch ends,
    ``best.ckpt`` by validation L1; with ``keep_epoch_checkpoints=true`` also ``epoch=K.ckpt``
-   after every epoch). Rerunning the same command resumes from
+   after every epoch). With ``ema_decay`` (e.g. 0.995) an exponential moving average of the
+   weights is kept (Lightning's ``WeightAveraging``): validation, checkpoints' ``state_dict``
+   and so the exported model use the averaged weights (the raw ones are kept under
+   ``current_model_state`` for resuming). Rerunning the same command resumes from
    ``last.ckpt`` (``resume=false`` starts over). ``init_from=<checkpoint>``
    starts a new run (new optimisers and schedule) from another run's weights:
    a fine-tuning stage, e.g. on whole rasters with a decaying learning rate.
@@ -61,6 +64,19 @@ class FinalCheckpoint(L.Callback):
 
     def on_train_end(self, trainer, module) -> None:  # noqa: ANN001 - Lightning's hook
         trainer.save_checkpoint(self.path)
+
+
+def weight_average(decay: float) -> L.Callback:
+    """An exponential moving average of all weights and buffers, updated after every batch: ``avg <- decay avg +
+    (1 - decay) w``, starting at the weights after the first batch; ``decay`` in (0, 1) (0.995: about the last 200
+    batches). Lightning swaps it in for validation, saves it as the checkpoint's ``state_dict`` and leaves it in the
+    model when training ends."""
+    from lightning.pytorch.callbacks import WeightAveraging
+    from torch.optim.swa_utils import get_ema_multi_avg_fn
+
+    if not 0.0 < decay < 1.0:
+        raise PatternshopError(f"ema_decay must be between 0 and 1 (exclusive), got {decay:g}")
+    return WeightAveraging(multi_avg_fn=get_ema_multi_avg_fn(decay))
 
 
 def make_pairs(cfg: DictConfig) -> None:
@@ -121,8 +137,10 @@ def train(cfg: DictConfig) -> dict:
         ModelCheckpoint(dirpath=checkpoints, save_last=True, save_top_k=0, every_n_train_steps=int(cfg.checkpoint_every_n_steps)),
         ModelCheckpoint(dirpath=checkpoints, filename="best", monitor="val/l1", mode="min", save_top_k=1),
         timer,
-        FinalCheckpoint(checkpoints / "last.ckpt"),
+        FinalCheckpoint(checkpoints / "last.ckpt"),  # before the average is copied into the model at the end
     ]
+    if cfg.get("ema_decay") is not None:
+        callbacks.append(weight_average(float(cfg.ema_decay)))
     if cfg.get("keep_epoch_checkpoints"):  # checkpoints/epoch=K.ckpt at every epoch end, all kept (interim models)
         callbacks.append(ModelCheckpoint(dirpath=checkpoints, filename="{epoch}", save_top_k=-1, every_n_epochs=1))
     logger = hydra.utils.instantiate(cfg.logger)

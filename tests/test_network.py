@@ -213,6 +213,7 @@ def test_train_end_to_end_and_resume(tmp_path: Path) -> None:
     assert summary["global_step"] == 6  # 3 batches x 2 optimiser steps
     last = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert last["global_step"] == 6  # the final weights, though 4 (checkpoint_every_n_steps) does not divide 6
+    assert "current_model_state" not in last  # no weight averaging unless ema_decay is set
     assert (tmp_path / "run" / "checkpoints" / "best.ckpt").is_file()
     assert list((tmp_path / "run" / "logs").glob("version_*/samples/epoch0000.png"))
     assert {"val/density_mae", "val/latent_mae", "val/kde_density_mae", "val/baseline_latent_mae"} <= set(summary["val_metrics"])
@@ -243,6 +244,26 @@ def test_fine_tuning_starts_from_another_runs_weights_with_a_decaying_rate(tmp_p
     assert summary["init_from"] == str(source) and summary["resumed_from"] is None and summary["global_step"] == 12
     missing = _train(tmp_path, f"init_from={tmp_path / 'nope.ckpt'}", f"run_dir={tmp_path / 'none'}")
     assert missing.returncode == 2 and "init_from: no such checkpoint" in missing.stderr
+
+
+def _generator_distance(checkpoint: Path) -> float:
+    """Largest |averaged - raw| over the generator's weights of a checkpoint written with ema_decay."""
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    averaged, raw = state["state_dict"], state["current_model_state"]
+    return max(float((averaged[k].float() - raw[k].float()).abs().max()) for k in raw if k.startswith("generator."))
+
+
+def test_ema_checkpoints_hold_a_moving_average_whose_lag_grows_with_the_decay(tmp_path: Path) -> None:
+    runs = {}
+    for decay in ("0.5", "0.999"):  # the same seeded run twice: the raw weights are the same, only the average differs
+        run = _train(tmp_path, "trainer.max_epochs=1", f"ema_decay={decay}", f"run_dir={tmp_path / decay}")
+        assert run.returncode == 0, run.stderr[-2000:]
+        runs[decay] = _generator_distance(tmp_path / decay / "checkpoints" / "last.ckpt")
+    assert 0.0 < runs["0.5"] < runs["0.999"]
+    plain = torch.load(tmp_path / "0.5" / "checkpoints" / "best.ckpt", map_location="cpu", weights_only=False)
+    assert "current_model_state" in plain  # validation (and so best.ckpt) saw the average too
+    bad = _train(tmp_path, "ema_decay=1.5", f"run_dir={tmp_path / 'bad'}", "data.generate=false")
+    assert bad.returncode == 2 and "ema_decay must be between 0 and 1" in bad.stderr
 
 
 def test_linear_policy_holds_then_decays_to_zero() -> None:
