@@ -117,6 +117,7 @@ def train(cfg: DictConfig) -> dict:
 
     from patternshop_nn.data import PairDataModule
 
+    averaging = weight_average(float(cfg.ema_decay)) if cfg.get("ema_decay") is not None else None  # checked first
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
     if cfg.data.generate and rank_zero_only.rank == 0:  # DDP: the ranks rank 0 starts read what it made before
@@ -139,8 +140,8 @@ def train(cfg: DictConfig) -> dict:
         timer,
         FinalCheckpoint(checkpoints / "last.ckpt"),  # before the average is copied into the model at the end
     ]
-    if cfg.get("ema_decay") is not None:
-        callbacks.append(weight_average(float(cfg.ema_decay)))
+    if averaging is not None:
+        callbacks.append(averaging)
     if cfg.get("keep_epoch_checkpoints"):  # checkpoints/epoch=K.ckpt at every epoch end, all kept (interim models)
         callbacks.append(ModelCheckpoint(dirpath=checkpoints, filename="{epoch}", save_top_k=-1, every_n_epochs=1))
     logger = hydra.utils.instantiate(cfg.logger)

@@ -260,8 +260,8 @@ def test_ema_checkpoints_hold_a_moving_average_whose_lag_grows_with_the_decay(tm
         assert run.returncode == 0, run.stderr[-2000:]
         runs[decay] = _generator_distance(tmp_path / decay / "checkpoints" / "last.ckpt")
     assert 0.0 < runs["0.5"] < runs["0.999"]
-    plain = torch.load(tmp_path / "0.5" / "checkpoints" / "best.ckpt", map_location="cpu", weights_only=False)
-    assert "current_model_state" in plain  # validation (and so best.ckpt) saw the average too
+    best = torch.load(tmp_path / "0.5" / "checkpoints" / "best.ckpt", map_location="cpu", weights_only=False)
+    assert "current_model_state" in best  # best.ckpt (chosen by validation) holds the average as its weights too
     bad = _train(tmp_path, "ema_decay=1.5", f"run_dir={tmp_path / 'bad'}", "data.generate=false")
     assert bad.returncode == 2 and "ema_decay must be between 0 and 1" in bad.stderr
 
