@@ -27,8 +27,8 @@ stationary, network alone: right preset     1.0       >= 0.95    s 0.05: >= 0.99
 The MAE bounds are 8 % above the measurement (the other-method latent MAE, a small figure, 35 %). v15 reads the
 synthesised procedural pairs better than v12 (0.0687 against v12's 0.0723 and v5's 0.0676 on these 4 pairs; v14
 0.0672; see default.eval.json for the 24 and docs/network.md "Model v15") and the other methods' density and latent
-a little worse (density 0.0456, latent 0.0067; v12 0.0442, 0.0055; v5's latent 0.0124). The per-pair figures of the 4 procedural pairs
-agree with default.eval.json's (made by the same code) to 1e-4, asserted to 0.003 and 0.004.
+a little worse (density 0.0456, latent 0.0067; v12 0.0442, 0.0055; v5's latent 0.0124). The per-pair figures of the
+4 procedural pairs agree with default.eval.json's (made by the same code) to 1e-4, asserted to 0.003 and 0.004.
 """
 
 from __future__ import annotations
