@@ -34,6 +34,8 @@ Manual optimisation, one discriminator and one generator step per batch:
   ``full_res_channels`` > 0 adds a path at the raster's full resolution to
   the L logit (:class:`~patternshop_nn.networks.DualBranchUNet`; it starts at
   zero and learns at ``full_res_lr``, as the scale head at ``l_scale_lr``);
+  ``full_res_stride`` k > 1 runs that path on the raster's k x k blocks
+  (space to depth) at about 1/k**2 of its cost;
 * Adam (lr 1e-4, betas (0.5, 0.999)) for both; ``lr_policy="step"``: the
   learning rates halve every ``lr_halving_epochs`` epochs (paper: 100);
   ``"linear"``: pix2pix's policy, constant for ``lr_constant_epochs`` epochs,
@@ -73,7 +75,7 @@ class Pix2PixModule(L.LightningModule):
                  lr_decay_epochs: int = 20, l_scale: bool = False, l_nll_weight: float = 1.0, l_scale_lr: float = 1e-3,
                  blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0, ssim_weight: float = 0.0,
                  ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1, ssim_max_b: float | None = None,
-                 full_res_channels: int = 0, full_res_lr: float = 1e-3) -> None:
+                 full_res_channels: int = 0, full_res_lr: float = 1e-3, full_res_stride: int = 1) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -81,7 +83,8 @@ class Pix2PixModule(L.LightningModule):
         self.automatic_optimization = False
         # upsample's default, "transposed", rebuilds checkpoints whose hparams predate the option;
         # conf/model/pix2pix.yaml (and the shipped model) use resize-convolution ("nearest").
-        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample, l_scale, full_res_channels)
+        self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample, l_scale, full_res_channels,
+                                        full_res_stride)
         self.discriminator = PatchDiscriminator(4, disc_channels, disc_layers)
         init_weights(self.generator)
         if full_res_channels > 0:

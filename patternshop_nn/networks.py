@@ -168,14 +168,20 @@ class DualBranchUNet(nn.Module):
             of it, behind one stride-2 convolution of the raw counts): two 3 x 3 convolutions of the raster with this
             many channels, read with the density decoder's L logit by a 3 x 3 convolution whose output is added to
             that logit. That convolution starts at zero, so a generator loaded without the path is unchanged.
+        full_res_stride: the path reads the raster in ``k x k`` blocks (space to depth): its convolutions run at
+            ``1/k`` of the raster's resolution on ``k**2`` channels of counts, and its last one gives ``k**2``
+            corrections per block, put back pixel by pixel (pixel shuffle), so the correction keeps the full
+            resolution at about ``1/k**2`` of the cost (1: every convolution at full resolution).
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
                  dropout: float = 0.0, upsample: str = "transposed", l_scale: bool = False,
-                 full_res_channels: int = 0) -> None:
+                 full_res_channels: int = 0, full_res_stride: int = 1) -> None:
         super().__init__()
         if levels < 2:
             raise ValueError(f"levels must be at least 2, got {levels}")
+        if full_res_stride < 1 or 2**levels % full_res_stride:
+            raise ValueError(f"full_res_stride must divide {2**levels} (the raster side's factor), got {full_res_stride}")
         if upsample not in UPSAMPLING:
             raise ValueError(f"unknown up-sampling {upsample!r}; choose one of {', '.join(UPSAMPLING)}")
         widths = [min(base_channels * 2**k, max_channels) for k in range(levels)]
@@ -189,10 +195,12 @@ class DualBranchUNet(nn.Module):
         if l_scale:
             self.scale = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], 1, upsample, bias=True))
         self.full_res_channels = full_res_channels
+        self.full_res_stride = full_res_stride
         if full_res_channels > 0:
-            self.full_res = nn.Sequential(nn.Conv2d(in_channels, full_res_channels, 3, 1, 1), nn.LeakyReLU(0.2),
+            blocks = full_res_stride**2  # raster pixels per block: the path's input and output channels
+            self.full_res = nn.Sequential(nn.Conv2d(in_channels * blocks, full_res_channels, 3, 1, 1), nn.LeakyReLU(0.2),
                                           nn.Conv2d(full_res_channels, full_res_channels, 3, 1, 1), nn.LeakyReLU(0.2))
-            self.refine = nn.Conv2d(full_res_channels + 1, 1, 3, 1, 1)
+            self.refine = nn.Conv2d(full_res_channels + blocks, blocks, 3, 1, 1)
             self.zero_refinement()
 
     FULL_RES_MODULES = ("full_res", "refine")  # the full-resolution path's submodules (names in the state dict)
@@ -210,7 +218,11 @@ class DualBranchUNet(nn.Module):
         """(B, 1, S, S) the L logit plus the full-resolution path's correction (itself without the path)."""
         if self.full_res_channels <= 0:
             return l_logit
-        return l_logit + self.refine(torch.cat([self.full_res(raster), l_logit], 1))
+        k = self.full_res_stride
+        if k == 1:
+            return l_logit + self.refine(torch.cat([self.full_res(raster), l_logit], 1))
+        blocks = torch.cat([self.full_res(F.pixel_unshuffle(raster, k)), F.pixel_unshuffle(l_logit, k)], 1)
+        return l_logit + F.pixel_shuffle(self.refine(blocks), k)
 
     def _encode(self, raster: torch.Tensor) -> list[torch.Tensor]:
         """The encoder's features, first level first."""

@@ -15,7 +15,7 @@ read back and inverted:
   sums of the 9 taps of the 3x3 kernel) is solved back to its 3x3 kernel by least squares (exact: the sums are
   consistent), its bias is every fourth of the exported one;
 * the decoders' batch norms and the other convolutions (the full-resolution path's included, where the model has
-  one: ``model.full_res_channels``) are copied.
+  one: ``model.full_res_channels``, its stride read from its first convolution) are copied.
 
 With ``l_scale=True`` the generator gets the Laplace-scale head: the exported one where the model has it (its
 ``l_scale`` output; such models name their layers ``generator.*``), else initialised as new layers are
@@ -26,6 +26,7 @@ The discriminator is not exported: it starts fresh.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -98,8 +99,11 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
     """
     path = Path(path)
     arrays, convs = _onnx_layers(path)
-    path_width = int(arrays["full_res.0.weight"].shape[0]) if "full_res.0.weight" in arrays else 0
-    generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, path_width).eval()
+    path_width, path_stride = 0, 1
+    if "full_res.0.weight" in arrays:  # (C, k * k, 3, 3): C channels on the raster's k x k blocks
+        path_width, path_stride = arrays["full_res.0.weight"].shape[0], math.isqrt(arrays["full_res.0.weight"].shape[1])
+    generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, int(path_width),
+                               path_stride).eval()
     init_weights(generator)
     state = generator.state_dict()
     new: dict[str, torch.Tensor] = {}
@@ -178,7 +182,8 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
     hp = module.hparams
     generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, module.generator.l_scale)
     if generator.full_res_channels:  # the module (and its recorded hyper-parameters) take the exported model's path
-        module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": generator.full_res_channels})
+        module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": generator.full_res_channels,
+                                  "full_res_stride": generator.full_res_stride})
         hp = module.hparams
     if rasters is not None:
         calibrate_folded_norms(generator, rasters)
