@@ -219,7 +219,7 @@ class DualBranchUNet(nn.Module):
         if self.full_res_channels <= 0:
             return l_logit
         k = self.full_res_stride
-        if k == 1:
+        if k == 1:  # the graph exported before strides existed, without no-op shuffles
             return l_logit + self.refine(torch.cat([self.full_res(raster), l_logit], 1))
         blocks = torch.cat([self.full_res(F.pixel_unshuffle(raster, k)), F.pixel_unshuffle(l_logit, k)], 1)
         return l_logit + F.pixel_shuffle(self.refine(blocks), k)
