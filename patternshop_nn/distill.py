@@ -1,6 +1,6 @@
 """Distil a generator's full-resolution path into a cheaper one on K x K blocks (``model.full_res_stride``).
 
-``python -m patternshop_nn.distill TEACHER.ckpt OUT.ckpt --pairs DIR [DIR ...] [--channels 32 --stride 4]``
+``python -m patternshop_nn.distill TEACHER.ckpt OUT.ckpt --pairs DIR [DIR ...] [--channels 16 --stride 4]``
 
 The student is the teacher with its full-resolution path replaced by one on ``K x K`` blocks
 (:class:`~patternshop_nn.networks.DualBranchUNet`, ``full_res_stride``), started at zero. Every other weight is the
@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # importing the module pulls in Lightning
 class DistillSettings:
     """The student's path and its training (defaults: what made v18, ``docs/network.md``, "Model v18")."""
 
-    channels: int = 32  # the student path's channels
+    channels: int = 16  # the student path's channels
     stride: int = 4  # its block side K (model.full_res_stride)
     steps: int = 3000
     batch_size: int = 16
@@ -163,9 +163,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--channels", type=int, default=defaults.channels, help=f"student path's channels (default {defaults.channels})")
     parser.add_argument("--stride", type=int, default=defaults.stride, help=f"its block side K (default {defaults.stride})")
     parser.add_argument("--steps", type=int, default=defaults.steps, help=f"batches (default {defaults.steps})")
-    parser.add_argument("--batch-size", type=int, default=defaults.batch_size)
-    parser.add_argument("--lr", type=float, default=defaults.lr)
-    parser.add_argument("--seed", type=int, default=defaults.seed)
+    parser.add_argument("--batch-size", type=int, default=defaults.batch_size, help=f"rasters a batch (default {defaults.batch_size})")
+    parser.add_argument("--lr", type=float, default=defaults.lr, help=f"Adam's learning rate, decaying to 0 (default {defaults.lr:g})")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="held-out draw, batches and symmetries (default 0)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
     def run(args: argparse.Namespace) -> None:
