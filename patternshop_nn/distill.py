@@ -10,9 +10,9 @@ and the teacher's, ``sigmoid(l + correction)`` (L/100), on rasters of pair folde
 of each, ``val_fraction`` of them drawn and held out). ``l`` and the teacher's L are computed once, in one pass of
 the teacher; the path then trains on batches of them under random symmetries of the square (Adam, cosine decay to 0).
 
-The checkpoint it writes is ``train.py``'s kind (``patternshop export`` and ``init_from`` take it), with the
-held-out mean ``|L_student - L_teacher|`` in L units (0..100) before (no path) and after. A few minutes on one
-thread: not resumable, rerun it.
+The checkpoint it writes (:func:`patternshop_nn.module.save_module_checkpoint`; ``patternshop export`` and
+``init_from`` take it) records the held-out mean ``|L_student - L_teacher|`` in L units (0..100) before (no path)
+and after. A few minutes on one thread: not resumable, rerun it.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -138,20 +137,6 @@ def folder_rasters(folders: list[str], per_folder: int) -> torch.Tensor:
     return torch.from_numpy(np.concatenate(parts))[:, None]
 
 
-def save_student(student: Pix2PixModule, out: Path, teacher_path: Path, report: dict) -> Path:
-    """Write the student as a checkpoint ``train.py`` and ``patternshop export`` read, atomically."""
-    import lightning
-
-    from synthesis.atomic import atomic_path
-
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out) as tmp:
-        torch.save({"state_dict": student.state_dict(), "hyper_parameters": dict(student.hparams),
-                    "pytorch-lightning_version": lightning.__version__, "distilled_from": str(teacher_path),
-                    "distillation": report}, tmp)
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     """Command line: see module docstring; errors are one line on stderr (exit 2)."""
     defaults = DistillSettings()
@@ -169,20 +154,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
     def run(args: argparse.Namespace) -> None:
-        from patternshop_nn.onnx_export import load_generator
-        from patternshop_nn.module import Pix2PixModule
+        from patternshop_nn.onnx_export import load_module
 
         torch.set_num_threads(args.threads)
-        load_generator(args.teacher)  # a missing or foreign file: one line
-        teacher = Pix2PixModule.load_from_checkpoint(args.teacher, map_location="cpu")
+        teacher = load_module(args.teacher)  # a missing or foreign file: one line
         rasters = folder_rasters(args.pairs, args.rasters_per_folder)
         settings = DistillSettings(args.channels, args.stride, args.steps, args.batch_size, args.lr, seed=args.seed)
         try:
             student, report = distill_path(teacher, rasters, settings, progress=True)
         except ValueError as exc:  # a stride the raster side does not allow
             raise PatternshopError(str(exc)) from exc
-        save_student(student, Path(args.out), Path(args.teacher), {**report, "pairs": args.pairs,
-                                                                   "rasters_per_folder": args.rasters_per_folder})
+        from patternshop_nn.module import save_module_checkpoint
+
+        save_module_checkpoint(student, args.out, distilled_from=args.teacher,
+                               distillation={**report, "pairs": args.pairs, "rasters_per_folder": args.rasters_per_folder})
         print(f"wrote {args.out}: held-out |L - teacher's L| {report['held_out_l_error']:.4f} L units "
               f"(without the path {report['held_out_l_error_without_path']:.4f})")
 

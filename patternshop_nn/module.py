@@ -233,3 +233,17 @@ class Pix2PixModule(L.LightningModule):
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp:
             Image.fromarray(image).save(tmp, format="PNG")
+
+
+def save_module_checkpoint(module: Pix2PixModule, path: str | Path, **record: object) -> Path:
+    """Write ``module`` as a checkpoint ``train.py init_from=``, ``patternshop export`` and ``load_from_checkpoint`` read
+    (its state dict, hyper-parameters and Lightning's version; ``record``: more keys saying where it came from),
+    atomically, creating the folder."""
+    from synthesis.atomic import atomic_path
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
+                    "pytorch-lightning_version": L.__version__, **record}, tmp)
+    return path

@@ -70,18 +70,27 @@ def load_generator(checkpoint_or_module: PathLike | nn.Module) -> nn.Module:
     """
     if isinstance(checkpoint_or_module, nn.Module):
         return getattr(checkpoint_or_module, "generator", checkpoint_or_module)
+    return load_module(checkpoint_or_module).generator
+
+
+def load_module(checkpoint: PathLike) -> nn.Module:
+    """The ``Pix2PixModule`` of a Lightning checkpoint, on the CPU.
+
+    Raises:
+        PatternshopError: the checkpoint is missing or not a ``Pix2PixModule`` checkpoint.
+    """
     import pickle
 
     from patternshop_nn.module import Pix2PixModule
 
-    path = Path(checkpoint_or_module)
+    path = Path(checkpoint)
     if not path.is_file():
         raise PatternshopError(f"{path}: no such checkpoint")
     with open(path, "rb") as handle:
         if handle.read(4) != b"PK\x03\x04":  # torch.save writes a zip archive; torch.load would give advice on weights_only
             raise PatternshopError(f"{path}: not a Pix2PixModule checkpoint (a Lightning .ckpt is a zip archive written by torch.save)")
     try:
-        return Pix2PixModule.load_from_checkpoint(path, map_location="cpu").generator
+        return Pix2PixModule.load_from_checkpoint(path, map_location="cpu")
     except (pickle.UnpicklingError, KeyError, RuntimeError, EOFError, ValueError, TypeError, AttributeError) as exc:
         reason = str(exc).strip().split("\n")[0][:200]  # torch's messages run over many lines of advice
         raise PatternshopError(f"{path}: not a Pix2PixModule checkpoint ({type(exc).__name__}: {reason})") from exc

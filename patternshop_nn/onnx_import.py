@@ -174,9 +174,7 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
     """Write a checkpoint for ``train.py init_from=`` (a :class:`~patternshop_nn.module.Pix2PixModule` state dict with the
     rebuilt generator and a fresh discriminator); ``model_kwargs`` are the module's (levels, base_channels,
     max_channels, l_scale ...; upsample is "nearest")."""
-    import lightning
-
-    from patternshop_nn.module import Pix2PixModule
+    from patternshop_nn.module import Pix2PixModule, save_module_checkpoint
 
     module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest"})
     hp = module.hparams
@@ -184,15 +182,10 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
     if generator.full_res_channels:  # the module (and its recorded hyper-parameters) take the exported model's path
         module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": generator.full_res_channels,
                                   "full_res_stride": generator.full_res_stride})
-        hp = module.hparams
     if rasters is not None:
         calibrate_folded_norms(generator, rasters)
     module.generator.load_state_dict(generator.state_dict())
-    out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(hp), "pytorch-lightning_version": lightning.__version__,
-                "rebuilt_from_onnx": str(onnx_path)}, out_path)
-    return out_path
+    return save_module_checkpoint(module, out_path, rebuilt_from_onnx=str(onnx_path))
 
 
 def main(argv: list[str] | None = None) -> int:
