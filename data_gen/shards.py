@@ -123,14 +123,19 @@ def list_shards(folder: str | os.PathLike) -> list[StoragePath]:
     return sorted(as_path(folder).glob("pairs-*.npz"), key=lambda path: path.name)
 
 
-def load_pairs(folder: str | os.PathLike) -> Pairs:
-    """Every pair of a folder's shards, in item order (parts of unfinished shards are not included)."""
+def require_shards(folder: str | os.PathLike) -> list[StoragePath]:
+    """:func:`list_shards`, or a :class:`~synthesis.errors.PatternshopError` (one line for the user) when there is none."""
     from synthesis.errors import PatternshopError
 
     shards = list_shards(folder)
     if not shards:
         raise PatternshopError(f"{folder}: no pair shards (pairs-*.npz); make them with 'python -m data_gen.pairs'")
-    return Pairs.concatenate([read_shard(path) for path in shards])
+    return shards
+
+
+def load_pairs(folder: str | os.PathLike) -> Pairs:
+    """Every pair of a folder's shards, in item order (parts of unfinished shards are not included)."""
+    return Pairs.concatenate([read_shard(path) for path in require_shards(folder)])
 
 
 def read_manifest(folder: str | os.PathLike) -> dict | None:

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from patternshop_nn.short_training import add_training_options, training_parser
 from synthesis.errors import PatternshopError, run_module_cli
 
 if TYPE_CHECKING:  # importing the module pulls in Lightning
@@ -121,14 +122,12 @@ def distill_path(teacher: Pix2PixModule, rasters: torch.Tensor, settings: Distil
 
 def folder_rasters(folders: list[str], per_folder: int) -> torch.Tensor:
     """(N, 1, S, S) float32: the first ``per_folder`` rasters of each pair folder, read shard by shard."""
-    from data_gen.shards import list_shards, read_shard
+    from data_gen.shards import read_shard, require_shards
 
     parts = []
     for folder in folders:
-        shards, count = list_shards(folder), 0
-        if not shards:
-            raise PatternshopError(f"{folder}: no pair shards (pairs-*.npz); make them with 'python -m data_gen.pairs'")
-        for shard in shards:
+        count = 0
+        for shard in require_shards(folder):
             if count >= per_folder:
                 break
             raster = read_shard(shard).raster[: per_folder - count]
@@ -140,24 +139,19 @@ def folder_rasters(folders: list[str], per_folder: int) -> torch.Tensor:
 def main(argv: list[str] | None = None) -> int:
     """Command line: see module docstring; errors are one line on stderr (exit 2)."""
     defaults = DistillSettings()
-    parser = argparse.ArgumentParser(prog="python -m patternshop_nn.distill", description=__doc__.splitlines()[0])
-    parser.add_argument("teacher", help="checkpoint of a generator with a full-resolution path (train.py's last.ckpt)")
-    parser.add_argument("out", help="student checkpoint to write")
-    parser.add_argument("--pairs", nargs="+", required=True, help="pair folders whose rasters it learns on")
+    parser = training_parser("python -m patternshop_nn.distill", __doc__, "the teacher: checkpoint of a generator with a "
+                             "full-resolution path (train.py's last.ckpt)", "student checkpoint to write",
+                             "pair folders whose rasters it learns on")
     parser.add_argument("--rasters-per-folder", type=int, default=192, help="the first N rasters of each folder (default 192)")
     parser.add_argument("--channels", type=int, default=defaults.channels, help=f"student path's channels (default {defaults.channels})")
     parser.add_argument("--stride", type=int, default=defaults.stride, help=f"its block side K (default {defaults.stride})")
-    parser.add_argument("--steps", type=int, default=defaults.steps, help=f"batches (default {defaults.steps})")
-    parser.add_argument("--batch-size", type=int, default=defaults.batch_size, help=f"rasters a batch (default {defaults.batch_size})")
-    parser.add_argument("--lr", type=float, default=defaults.lr, help=f"Adam's learning rate, decaying to 0 (default {defaults.lr:g})")
-    parser.add_argument("--seed", type=int, default=defaults.seed, help="held-out draw, batches and symmetries (default 0)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    add_training_options(parser, defaults, "rasters")
 
     def run(args: argparse.Namespace) -> None:
         from patternshop_nn.onnx_export import load_module
 
         torch.set_num_threads(args.threads)
-        teacher = load_module(args.teacher)  # a missing or foreign file: one line
+        teacher = load_module(args.model)  # a missing or foreign file: one line
         rasters = folder_rasters(args.pairs, args.rasters_per_folder)
         settings = DistillSettings(args.channels, args.stride, args.steps, args.batch_size, args.lr, seed=args.seed)
         try:
@@ -166,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             raise PatternshopError(str(exc)) from exc
         from patternshop_nn.module import save_module_checkpoint
 
-        save_module_checkpoint(student, args.out, distilled_from=args.teacher,
+        save_module_checkpoint(student, args.out, distilled_from=args.model,
                                distillation={**report, "pairs": args.pairs, "rasters_per_folder": args.rasters_per_folder})
         print(f"wrote {args.out}: held-out |L - teacher's L| {report['held_out_l_error']:.4f} L units "
               f"(without the path {report['held_out_l_error_without_path']:.4f})")

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from synthesis.atomic import atomic_path
-from synthesis.errors import PatternshopError, run_module_cli
+from synthesis.errors import run_module_cli
 
 CALIBRATION_RASTERS = 36  # rasters of the training pairs whose activation ranges set the int8 scales
 FINE_FRACTION = 4  # convolutions whose output side is at least the raster's side / this stay float
@@ -42,14 +42,9 @@ def calibration_rasters(pairs_dirs: list[PathLike], count: int = CALIBRATION_RAS
     Raises:
         PatternshopError: a folder without pair shards.
     """
-    from data_gen.shards import list_shards, read_shard
+    from data_gen.shards import read_shard, require_shards
 
-    shards = []
-    for folder in pairs_dirs:
-        found = list_shards(folder)
-        if not found:
-            raise PatternshopError(f"{folder}: no pair shards (pairs-*.npz); make them with 'python -m data_gen.pairs'")
-        shards += found
+    shards = [shard for folder in pairs_dirs for shard in require_shards(folder)]
     rasters = np.concatenate([read_shard(path).raster for path in shards])
     chosen = np.random.default_rng(seed).choice(len(rasters), size=min(count, len(rasters)), replace=False)
     return [rasters[k].astype(np.float32)[None, None] for k in sorted(chosen)]

@@ -1,0 +1,28 @@
+"""The command line shared by the short trainings of part of a model (``distill``, ``tune_correlation``)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def training_parser(prog: str, doc: str, model_help: str, out_help: str, pairs_help: str) -> argparse.ArgumentParser:
+    """A parser with the positional ``model`` (a checkpoint) and ``out`` and the required ``--pairs DIR [DIR ...]``;
+    its description is the first line of ``doc``."""
+    parser = argparse.ArgumentParser(prog=prog, description=doc.splitlines()[0])
+    parser.add_argument("model", help=model_help)
+    parser.add_argument("out", help=out_help)
+    parser.add_argument("--pairs", nargs="+", required=True, help=pairs_help)
+    return parser
+
+
+def add_training_options(parser: argparse.ArgumentParser, defaults: object, unit: str) -> None:
+    """``--steps``, ``--batch-size``, ``--lr``, ``--seed`` and ``--threads``, their defaults read from ``defaults``'
+    attributes of those names (a settings dataclass); ``unit`` names what a batch holds ("rasters", "pairs")."""
+    parser.add_argument("--steps", type=int, default=defaults.steps, help=f"batches (default {defaults.steps})")
+    parser.add_argument("--batch-size", type=int, default=defaults.batch_size,
+                        help=f"{unit} a batch (default {defaults.batch_size})")
+    parser.add_argument("--lr", type=float, default=defaults.lr,
+                        help=f"Adam's learning rate, decaying to 0 (default {defaults.lr:g})")
+    parser.add_argument("--seed", type=int, default=defaults.seed,
+                        help=f"held-out draw, batches and symmetries (default {defaults.seed})")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")

@@ -1,0 +1,82 @@
+"""Training the correlation decoder alone (``python -m patternshop_nn.tune_correlation``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from data_gen.shards import Pairs
+from patternshop_nn.module import Pix2PixModule
+from patternshop_nn.onnx_export import export_onnx
+from patternshop_nn.tune_correlation import TuneSettings, folder_features, main, tune_correlation
+
+SIDE = 64
+
+
+def model() -> Pix2PixModule:
+    torch.manual_seed(0)
+    return Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, upsample="nearest", l_scale=True,
+                         full_res_channels=4).eval()
+
+
+def pair_folder(folder, pairs: int = 16, seed: int = 1):
+    """Rasters of random density, all with the colour z = (200, 60) / 255: what a fresh decoder (about 128) must learn."""
+    rng = np.random.default_rng(seed)
+    folder.mkdir()
+    density = rng.uniform(0.02, 0.3, (pairs, 1, 1))
+    raster = (rng.random((pairs, SIDE, SIDE)) < density).astype(np.float16)
+    target = np.zeros((pairs, SIDE, SIDE, 3), np.uint8)
+    target[..., 0] = 128
+    target[..., 1] = 200
+    target[..., 2] = 60
+    Pairs(np.arange(pairs), raster, target, np.zeros((0, 2), np.float32), np.zeros(pairs + 1, np.int64),
+          [{} for _ in range(pairs)]).write(folder / "pairs-00000.npz")
+    return folder
+
+
+def test_only_the_correlation_decoder_learns_and_its_error_falls(tmp_path):
+    tuned, original = model(), model()
+    settings = TuneSettings(steps=100, batch_size=4, lr=3e-2, val_fraction=0.25)
+    rng = torch.Generator().manual_seed(0)
+    folders = [folder_features(tuned.generator, pair_folder(tmp_path / name, seed=k), settings, rng)
+               for k, name in enumerate(("one", "two"))]
+    report = tune_correlation(tuned, folders, settings)
+    for name in ("one", "two"):  # held out, a and b much nearer their targets
+        assert report["held_out_ab_error"][name] < 0.3 * report["held_out_ab_error_before"][name]
+    changed = [k for k, v in tuned.state_dict().items() if not torch.equal(v, original.state_dict()[k])]
+    assert changed and all(k.startswith("generator.correlation.") for k in changed)
+    assert not any("running_" in k for k in changed)  # batch-norm statistics as they were
+    x = torch.from_numpy(np.load(tmp_path / "one" / "pairs-00000.npz")["raster"][:2].astype(np.float32))[:, None]
+    with torch.no_grad():
+        (lab, scale), (want_lab, want_scale) = tuned.generator.forward_with_scale(x), original.generator.forward_with_scale(x)
+    torch.testing.assert_close(lab[:, :1], want_lab[:, :1], rtol=0, atol=0)  # L and its scale: bit for bit
+    torch.testing.assert_close(scale, want_scale, rtol=0, atol=0)
+    assert not torch.equal(lab[:, 1:], want_lab[:, 1:])
+    assert all(p.requires_grad for p in tuned.parameters())  # the module is left trainable as it came
+
+
+def test_the_command_writes_a_checkpoint_that_exports(tmp_path, capsys):
+    original = model()
+    checkpoint = tmp_path / "model.ckpt"
+    torch.save({"state_dict": original.state_dict(), "hyper_parameters": dict(original.hparams),
+                "pytorch-lightning_version": "2"}, checkpoint)
+    folder = pair_folder(tmp_path / "pairs")
+    out = tmp_path / "tuned.ckpt"
+    assert main([str(checkpoint), str(out), "--pairs", str(folder), "--steps", "3", "--batch-size", "2"]) == 0
+    assert "held-out |a, b - target|" in capsys.readouterr().out
+    saved = torch.load(out, weights_only=False)
+    assert saved["correlation_tuning"]["steps"] == 3 and saved["correlation_tuning"]["folders"] == [str(folder)]
+    export_onnx(out, tmp_path / "tuned.onnx", {"points_per_ink": 8000})
+    assert (tmp_path / "tuned.onnx").stat().st_size > 0
+
+
+def test_a_folder_without_pairs_is_one_line(tmp_path, capsys):
+    original = model()
+    checkpoint = tmp_path / "model.ckpt"
+    torch.save({"state_dict": original.state_dict(), "hyper_parameters": dict(original.hparams),
+                "pytorch-lightning_version": "2"}, checkpoint)
+    (tmp_path / "empty").mkdir()
+    assert main([str(checkpoint), str(tmp_path / "out.ckpt"), "--pairs", str(tmp_path / "empty")]) == 2
+    err = capsys.readouterr().err
+    assert "no pair shards" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out.ckpt").exists()
