@@ -13,7 +13,8 @@ training (:class:`~patternshop_nn.module.Pix2PixModule`); Adam (betas 0.5, 0.999
 
 The checkpoint it writes (:func:`patternshop_nn.module.save_module_checkpoint`; ``patternshop export`` and
 ``init_from`` take it) records the held-out mean ``|a, b - target|`` per folder, in ab units (0..255), before and
-after. About 0.5 s a step on one thread, 1 GB of features for 13 folders of 4 shards: not resumable, rerun it.
+after. About 0.5 s a step on one thread (256-px pairs), 1.2 GB of features for 13 folders of 4 shards of 32 pairs:
+not resumable, rerun it.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ if TYPE_CHECKING:  # importing the module pulls in Lightning
 
 @dataclass(frozen=True)
 class TuneSettings:
-    """The decoder's training (defaults: what made v19, ``docs/network.md``)."""
+    """The decoder's training (defaults: trial v19's first candidate, corrA, ``docs/network.md``)."""
 
     steps: int = 2000
     batch_size: int = 8
