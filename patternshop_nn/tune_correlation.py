@@ -50,7 +50,7 @@ class TuneSettings:
 
 @dataclass
 class FolderFeatures:
-    """One pair folder's cached inputs: the encoder's features (one (N, C_k, S_k, S_k) float16 tensor per level, first
+    """One pair folder's cached inputs (``name``: its path as given): the encoder's features (one (N, C_k, S_k, S_k) float16 tensor per level, first
     level first), the a, b targets (N, 2, S, S) float16 in [0, 1] (z = (ab + 128) / 255), held-out and training indices."""
 
     name: str
@@ -86,7 +86,7 @@ def folder_features(generator: torch.nn.Module, folder: str | Path, settings: Tu
     if held >= len(order):
         raise PatternshopError(f"{folder}: {len(order)} pairs leave none to train on after holding {held} out")
     features = [torch.cat(level) for level in zip(*levels, strict=True)]
-    return FolderFeatures(Path(folder).name, features, targets_all, order[:held], order[held:])
+    return FolderFeatures(str(Path(folder)), features, targets_all, order[:held], order[held:])
 
 
 def _ab(generator: torch.nn.Module, data: FolderFeatures, index: torch.Tensor) -> torch.Tensor:

@@ -41,7 +41,7 @@ def test_only_the_correlation_decoder_learns_and_its_error_falls(tmp_path):
     folders = [folder_features(tuned.generator, pair_folder(tmp_path / name, seed=k), settings, rng)
                for k, name in enumerate(("one", "two"))]
     report = tune_correlation(tuned, folders, settings)
-    for name in ("one", "two"):  # held out, a and b much nearer their targets
+    for name in (str(tmp_path / "one"), str(tmp_path / "two")):  # held out, a and b much nearer their targets
         assert report["held_out_ab_error"][name] < 0.3 * report["held_out_ab_error_before"][name]
     changed = [k for k, v in tuned.state_dict().items() if not torch.equal(v, original.state_dict()[k])]
     assert changed and all(k.startswith("generator.correlation.") for k in changed)
