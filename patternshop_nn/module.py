@@ -60,6 +60,7 @@ from torch.nn import functional as F
 from patternshop_nn.baselines import LATENT_MIN_DENSITY
 from patternshop_nn.networks import (DualBranchUNet, GANLoss, PatchDiscriminator, blurred_l1, init_weights, laplace_nll,
                                      structural_similarity)
+from synthesis.atomic import atomic_path
 
 LR_POLICIES = ("step", "linear")
 SSIM_WINDOW_PX = 7  # the SSIM term's window (scikit-image's default, as the figures score)
@@ -214,7 +215,6 @@ class Pix2PixModule(L.LightningModule):
             return
         from PIL import Image
 
-        from synthesis.atomic import atomic_path
         from synthesis.labmap import LabMap
 
         def array(values: torch.Tensor) -> np.ndarray:  # float32: numpy has no bfloat16 (trainer.precision=bf16-mixed)
@@ -239,8 +239,6 @@ def save_module_checkpoint(module: Pix2PixModule, path: str | Path, **record: ob
     """Write ``module`` as a checkpoint ``train.py init_from=``, ``patternshop export`` and ``load_from_checkpoint`` read
     (its state dict, hyper-parameters and Lightning's version; ``record``: more keys saying where it came from),
     atomically, creating the folder."""
-    from synthesis.atomic import atomic_path
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:

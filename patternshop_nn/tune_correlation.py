@@ -112,18 +112,13 @@ def tune_correlation(module: Pix2PixModule, folders: list[FolderFeatures], setti
         raise PatternshopError(f"steps and batch_size must be >= 1 and a folder given, got {settings}, {len(folders)} folders")
     generator = module.generator.eval()
     before = {data.name: round(ab_error(generator, data, data.held_out), 4) for data in folders}
-    for parameter in module.parameters():
-        parameter.requires_grad_(False)
-    decoder = generator.correlation
-    parameters = list(decoder.parameters())
-    for parameter in parameters:
-        parameter.requires_grad_(True)
+    decoder = generator.correlation  # the only layers between the cached features and the loss: nothing else gets a gradient
     decoder.train()
     for layer in decoder.modules():  # batch-norm statistics as trained
         if isinstance(layer, torch.nn.BatchNorm2d):
             layer.eval()
     rng = torch.Generator().manual_seed(settings.seed)
-    optimizer = torch.optim.Adam(parameters, lr=settings.lr, betas=(0.5, 0.999))
+    optimizer = torch.optim.Adam(decoder.parameters(), lr=settings.lr, betas=(0.5, 0.999))
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, settings.steps)
     for _ in tqdm(range(settings.steps), desc="tune a, b", unit="step", disable=not progress):
         data = folders[int(torch.randint(len(folders), (1,), generator=rng))]
@@ -134,8 +129,6 @@ def tune_correlation(module: Pix2PixModule, folders: list[FolderFeatures], setti
         optimizer.step()
         schedule.step()
     generator.eval()
-    for parameter in module.parameters():
-        parameter.requires_grad_(True)
     after = {data.name: round(ab_error(generator, data, data.held_out), 4) for data in folders}
     return {"held_out_ab_error_before": before, "held_out_ab_error": after,
             "pairs": {data.name: len(data.targets) for data in folders}, **asdict(settings)}
