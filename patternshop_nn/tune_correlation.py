@@ -6,8 +6,9 @@ Only ``generator.correlation`` (the decoder of a, b; :class:`~patternshop_nn.net
 encoder, the density decoder, the full-resolution path and the ``l_scale`` head keep their weights, so the map's L
 and its predicted Laplace scale are the model's exactly, and so is every figure of L. The decoder's batch-norm
 statistics stay as they are (eval mode). The encoder's features of the first ``shards_per_folder`` shards of each
-pair folder are computed once, each raster and its target under one random symmetry of the square, and
-``val_fraction`` of each folder is held out. A batch comes from one folder drawn uniformly, so a small folder (the
+pair folder are computed once, each raster and its target under one random symmetry of the square (with
+``--views 2`` also under that symmetry's transpose, so the decoder sees every pattern with its rows as columns), and
+``val_fraction`` of each folder's pairs is held out (all views of a pair on the same side). A batch comes from one folder drawn uniformly, so a small folder (the
 lattices, the cluster processes) counts as much as a large one. The loss is the L1 of a, b over all pixels, as in
 training (:class:`~patternshop_nn.module.Pix2PixModule`); Adam (betas 0.5, 0.999), cosine decay to 0.
 
@@ -38,7 +39,8 @@ if TYPE_CHECKING:  # importing the module pulls in Lightning
 
 @dataclass(frozen=True)
 class TuneSettings:
-    """The decoder's training (defaults: trial v19's first candidate, corrA, ``docs/network.md``)."""
+    """The decoder's training (defaults: trial v19's first candidate, corrA, ``docs/network.md``); ``views``: 1 (a
+    random symmetry per pair) or 2 (that symmetry and its transpose)."""
 
     steps: int = 2000
     batch_size: int = 8
@@ -46,12 +48,14 @@ class TuneSettings:
     shards_per_folder: int = 4
     val_fraction: float = 0.125
     seed: int = 0
+    views: int = 1
 
 
 @dataclass
 class FolderFeatures:
     """One pair folder's cached inputs (``name``: its path as given): the encoder's features (one (N, C_k, S_k, S_k) float16 tensor per level, first
-    level first), the a, b targets (N, 2, S, S) float16 in [0, 1] (z = (ab + 128) / 255), held-out and training indices."""
+    level first), the a, b targets (N, 2, S, S) float16 in [0, 1] (z = (ab + 128) / 255), held-out and training indices; N counts views
+    (pairs × ``TuneSettings.views``)."""
 
     name: str
     features: list[torch.Tensor]
@@ -64,10 +68,13 @@ class FolderFeatures:
 def folder_features(generator: torch.nn.Module, folder: str | Path, settings: TuneSettings,
                     generator_rng: torch.Generator, batch_size: int = 8) -> FolderFeatures:
     """The encoder's features and a, b targets of the first ``settings.shards_per_folder`` shards of a pair folder,
-    each pair under one random symmetry of the square (:func:`patternshop_nn.data.dihedral`)."""
+    each pair under one random symmetry of the square (:func:`patternshop_nn.data.dihedral`), and with
+    ``settings.views`` 2 also under its transpose (a pair's views are consecutive rows)."""
     from data_gen.shards import read_shard, require_shards
     from patternshop_nn.data import dihedral
 
+    if settings.views not in (1, 2):
+        raise PatternshopError(f"views must be 1 or 2, got {settings.views}")
     shards = require_shards(folder)[: settings.shards_per_folder]
     levels: list[list[torch.Tensor]] = []
     targets = []
@@ -75,18 +82,20 @@ def folder_features(generator: torch.nn.Module, folder: str | Path, settings: Tu
         pairs = read_shard(shard)
         raster = torch.from_numpy(pairs.raster.astype(np.float32))[:, None]
         target = torch.from_numpy(pairs.target[..., 1:].astype(np.float32) / 255.0).permute(0, 3, 1, 2)
-        codes = torch.randint(8, (len(raster),), generator=generator_rng).tolist()
-        raster = torch.cat([dihedral(raster[k : k + 1], code) for k, code in enumerate(codes)])
-        targets.append(torch.cat([dihedral(target[k : k + 1], code) for k, code in enumerate(codes)]).half())
+        first = torch.randint(8, (len(raster),), generator=generator_rng).tolist()
+        codes = [(k, code ^ (4 * view)) for k, code in enumerate(first) for view in range(settings.views)]  # pair-major
+        raster = torch.cat([dihedral(raster[k : k + 1], code) for k, code in codes])
+        targets.append(torch.cat([dihedral(target[k : k + 1], code) for k, code in codes]).half())
         for start in range(0, len(raster), batch_size):
             levels.append([level.half() for level in generator._encode(raster[start : start + batch_size])])
     targets_all = torch.cat(targets)
-    order = torch.randperm(len(targets_all), generator=generator_rng)
+    order = torch.randperm(len(targets_all) // settings.views, generator=generator_rng)  # pairs, then their views
     held = max(1, round(settings.val_fraction * len(order)))
     if held >= len(order):
         raise PatternshopError(f"{folder}: {len(order)} pairs leave none to train on after holding {held} out")
+    views = (order[:, None] * settings.views + torch.arange(settings.views)).reshape(-1)
     features = [torch.cat(level) for level in zip(*levels, strict=True)]
-    return FolderFeatures(str(Path(folder)), features, targets_all, order[:held], order[held:])
+    return FolderFeatures(str(Path(folder)), features, targets_all, views[: held * settings.views], views[held * settings.views :])
 
 
 def _ab(generator: torch.nn.Module, data: FolderFeatures, index: torch.Tensor) -> torch.Tensor:
@@ -142,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
                              "pair folders it learns on, each sampled equally")
     parser.add_argument("--shards-per-folder", type=int, default=defaults.shards_per_folder,
                         help=f"the first N shards of each folder (default {defaults.shards_per_folder})")
+    parser.add_argument("--views", type=int, choices=(1, 2), default=defaults.views,
+                        help="1: each pair under one random symmetry of the square; 2: also under its transpose, so "
+                             "rows read as columns learn the same colour (default %(default)s)")
     add_training_options(parser, defaults, "pairs")
 
     def run(args: argparse.Namespace) -> None:
@@ -150,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         from patternshop_nn.onnx_export import load_module
 
         torch.set_num_threads(args.threads)
-        settings = TuneSettings(args.steps, args.batch_size, args.lr, args.shards_per_folder, seed=args.seed)
+        settings = TuneSettings(args.steps, args.batch_size, args.lr, args.shards_per_folder, seed=args.seed, views=args.views)
         for folder in args.pairs:  # before any work
             require_shards(folder)
         module = load_module(args.model)  # a missing or foreign file: one line

@@ -6,6 +6,7 @@ import numpy as np
 import torch
 
 from data_gen.shards import Pairs
+from patternshop_nn.data import dihedral
 from patternshop_nn.module import Pix2PixModule
 from patternshop_nn.onnx_export import export_onnx
 from patternshop_nn.tune_correlation import TuneSettings, folder_features, main, tune_correlation
@@ -80,3 +81,27 @@ def test_a_folder_without_pairs_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "no pair shards" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out.ckpt").exists()
+
+
+def test_two_views_are_a_symmetry_and_its_transpose_held_out_by_pair(tmp_path):
+    folder = pair_folder(tmp_path / "pairs", pairs=8)
+    with np.load(folder / "pairs-00000.npz") as shard:  # a, b vary along x, so a transpose shows
+        arrays = dict(shard)
+    arrays["target"][..., 1] = np.arange(SIDE, dtype=np.uint8)[None, None, :] * 3
+    np.savez(folder / "pairs-00000.npz", **arrays)
+    generator = model().generator
+    data = folder_features(generator, folder, TuneSettings(views=2, val_fraction=0.25), torch.Generator().manual_seed(0))
+    assert len(data.targets) == 16
+    first, second = data.targets[0::2].float(), data.targets[1::2].float()
+    torch.testing.assert_close(second, first.transpose(-1, -2), rtol=0, atol=0)
+    assert not torch.equal(first, second)
+    held, train = set(data.held_out.tolist()), set(data.train.tolist())
+    assert held.isdisjoint(train) and held | train == set(range(16)) and len(held) == 4
+    assert {k // 2 for k in held}.isdisjoint({k // 2 for k in train})  # both views of a pair on one side
+    raster = torch.from_numpy(arrays["raster"][:1].astype(np.float32))[:, None]
+    with torch.no_grad():  # the first pair's views: its raster under some symmetry, then that transposed
+        seen = [dihedral(raster, code) for code in range(8)]
+        first_view = [view for view in seen if torch.equal(generator._encode(view)[0].half(), data.features[0][:1])]
+        assert len(first_view) == 1
+        want = generator._encode(first_view[0].transpose(-1, -2))[0].half()
+    torch.testing.assert_close(data.features[0][1:2], want, rtol=0, atol=0)
