@@ -1,4 +1,4 @@
-"""The command line shared by the short trainings of part of a model (``distill``, ``tune_correlation``)."""
+"""The command line shared by the short trainings of part of a model (``distill``, ``tune_correlation``, ``tune_encoder``)."""
 
 from __future__ import annotations
 
@@ -26,3 +26,9 @@ def add_training_options(parser: argparse.ArgumentParser, defaults: object, unit
     parser.add_argument("--seed", type=int, default=defaults.seed,
                         help=f"held-out draw, batches and symmetries (default {defaults.seed})")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+
+
+def add_shards_option(parser: argparse.ArgumentParser, default: int) -> None:
+    """``--shards-per-folder N``: the first N shards of each pair folder."""
+    parser.add_argument("--shards-per-folder", type=int, default=default,
+                        help=f"the first N shards of each folder (default {default})")

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from patternshop_nn.short_training import add_training_options, training_parser
+from patternshop_nn.short_training import add_shards_option, add_training_options, training_parser
 from synthesis.errors import PatternshopError, run_module_cli
 
 if TYPE_CHECKING:  # importing the module pulls in Lightning
@@ -149,8 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = training_parser("python -m patternshop_nn.tune_correlation", __doc__, "checkpoint of the generator to tune "
                              "(train.py's last.ckpt, distill's output ...)", "checkpoint to write",
                              "pair folders it learns on, each sampled equally")
-    parser.add_argument("--shards-per-folder", type=int, default=defaults.shards_per_folder,
-                        help=f"the first N shards of each folder (default {defaults.shards_per_folder})")
+    add_shards_option(parser, defaults.shards_per_folder)
     parser.add_argument("--views", type=int, choices=(1, 2), default=defaults.views,
                         help="1: each pair under one random symmetry of the square; 2: also under its transpose, so "
                              "rows read as columns learn the same colour (default %(default)s)")

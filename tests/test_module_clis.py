@@ -20,6 +20,7 @@ FAILING_RUNS = {
     "patternshop_nn.onnx_import": ["nope.onnx", "out.ckpt"],
     "patternshop_nn.distill": ["nope.ckpt", "out.ckpt", "--pairs", "nope_dir"],
     "patternshop_nn.tune_correlation": ["nope.ckpt", "out.ckpt", "--pairs", "nope_dir"],
+    "patternshop_nn.tune_encoder": ["nope.ckpt", "out.ckpt", "--pairs", "nope_dir"],
     "patternshop_nn.evaluate": ["--suite", "heldout", "--model", "nope.onnx", "--out", "out.json"],
     "data_gen.preview": ["nope_dir", "out.png"],
     "data_gen.clean_pairs": ["nope_dir", "destination"],

@@ -56,19 +56,25 @@ def test_only_the_correlation_decoder_learns_and_its_error_falls(tmp_path):
     assert all(p.requires_grad for p in tuned.parameters())  # the module is left trainable as it came
 
 
-def test_the_command_writes_a_checkpoint_that_exports(tmp_path, capsys):
+def assert_the_command_writes_a_checkpoint_that_exports(command, record: str, printed: str, tmp_path, capsys) -> None:
+    """``command`` (a tool's ``main``) on a fresh model and one folder, 3 steps: it prints ``printed``, its checkpoint
+    keeps the settings and folders under ``record`` and exports to ONNX."""
     original = model()
     checkpoint = tmp_path / "model.ckpt"
     torch.save({"state_dict": original.state_dict(), "hyper_parameters": dict(original.hparams),
                 "pytorch-lightning_version": "2"}, checkpoint)
     folder = pair_folder(tmp_path / "pairs")
     out = tmp_path / "tuned.ckpt"
-    assert main([str(checkpoint), str(out), "--pairs", str(folder), "--steps", "3", "--batch-size", "2"]) == 0
-    assert "held-out |a, b - target|" in capsys.readouterr().out
+    assert command([str(checkpoint), str(out), "--pairs", str(folder), "--steps", "3", "--batch-size", "2"]) == 0
+    assert printed in capsys.readouterr().out
     saved = torch.load(out, weights_only=False)
-    assert saved["correlation_tuning"]["steps"] == 3 and saved["correlation_tuning"]["folders"] == [str(folder)]
+    assert saved[record]["steps"] == 3 and saved[record]["folders"] == [str(folder)]
     export_onnx(out, tmp_path / "tuned.onnx", {"points_per_ink": 8000})
     assert (tmp_path / "tuned.onnx").stat().st_size > 0
+
+
+def test_the_command_writes_a_checkpoint_that_exports(tmp_path, capsys):
+    assert_the_command_writes_a_checkpoint_that_exports(main, "correlation_tuning", "held-out |a, b - target|", tmp_path, capsys)
 
 
 def test_a_folder_without_pairs_is_one_line(tmp_path, capsys):
