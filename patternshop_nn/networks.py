@@ -17,7 +17,9 @@ The generator is a pix2pix U-Net with one encoder and **two decoders**, one
 for density (1 channel) and one for correlation (2 channels), each with skip
 connections from the shared encoder; their outputs are concatenated and passed
 through a sigmoid. Widths double from ``base_channels`` per level up to
-``max_channels``.
+``max_channels``. With ``correlation_encoder=True`` the correlation decoder reads
+an encoder of its own (:class:`Encoder`, the same widths) instead, so its a, b
+can learn without moving L (``python -m patternshop_nn.tune_encoder``).
 
 Up-sampling (``upsample``):
 
@@ -128,6 +130,21 @@ def _up(in_channels: int, out_channels: int, dropout: float, upsample: str) -> n
     return nn.Sequential(*layers)
 
 
+class Encoder(nn.Module):
+    """A U-Net encoder: ``first`` (a 4x4 stride-2 convolution) then ``downs`` (:func:`_down`) -> features, first level first."""
+
+    def __init__(self, in_channels: int, widths: list[int]) -> None:
+        super().__init__()
+        self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1)
+        self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < len(widths) - 1) for k in range(1, len(widths)))
+
+    def forward(self, raster: torch.Tensor) -> list[torch.Tensor]:
+        features = [self.first(raster)]
+        for down in self.downs:
+            features.append(down(features[-1]))
+        return features
+
+
 class Decoder(nn.Module):
     """One U-Net decoder branch over the encoder's features (deepest first) -> (B, out_channels, S, S) logits."""
 
@@ -172,11 +189,14 @@ class DualBranchUNet(nn.Module):
             ``1/k`` of the raster's resolution on ``k**2`` channels of counts, and its last one gives ``k**2``
             corrections per block, put back pixel by pixel (pixel shuffle), so the correction keeps the full
             resolution at about ``1/k**2`` of the cost (1: every convolution at full resolution).
+        correlation_encoder: the correlation decoder reads an encoder of its own (``correlation_encoder``, an
+            :class:`Encoder` of the same widths) instead of the density decoder's: a, b can learn what the shared
+            features hide while L and its scale stay as they are (:meth:`own_correlation_encoder` starts it as a copy).
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
                  dropout: float = 0.0, upsample: str = "transposed", l_scale: bool = False,
-                 full_res_channels: int = 0, full_res_stride: int = 1) -> None:
+                 full_res_channels: int = 0, full_res_stride: int = 1, correlation_encoder: bool = False) -> None:
         super().__init__()
         if levels < 2:
             raise ValueError(f"levels must be at least 2, got {levels}")
@@ -192,6 +212,7 @@ class DualBranchUNet(nn.Module):
         self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < levels - 1) for k in range(1, levels))
         self.density = Decoder(widths, 1, dropout, upsample)
         self.correlation = Decoder(widths, 2, dropout, upsample)
+        self.correlation_encoder = Encoder(in_channels, widths) if correlation_encoder else None
         if l_scale:
             self.scale = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], 1, upsample, bias=True))
         self.full_res_channels = full_res_channels
@@ -234,10 +255,28 @@ class DualBranchUNet(nn.Module):
             features.append(down(features[-1]))
         return features
 
+    def own_correlation_encoder(self) -> None:
+        """Give the correlation decoder an encoder of its own, a copy of the shared one (the function is unchanged)."""
+        if self.correlation_encoder is None:
+            self.correlation_encoder = Encoder(self.first.in_channels, [self.first.out_channels, *(d[1].out_channels for d in self.downs)])
+            self.correlation_encoder.first.load_state_dict(self.first.state_dict())
+            self.correlation_encoder.downs.load_state_dict(self.downs.state_dict())
+            self.correlation_encoder.train(self.training)  # a new module trains; it takes the generator's mode
+
+    def correlation_features(self, raster: torch.Tensor) -> list[torch.Tensor]:
+        """The features the correlation decoder reads: its own encoder's, else the shared one's (first level first)."""
+        return self._encode(raster) if self.correlation_encoder is None else self.correlation_encoder(raster)
+
+    def correlation_logits(self, raster: torch.Tensor, features: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """(B, 2, S, S) the a, b logits of a raster (B, 1, S, S); ``features``: the shared encoder's, when computed."""
+        if features is None or self.correlation_encoder is not None:
+            features = self.correlation_features(raster)
+        return self.correlation(features)
+
     def forward(self, raster: torch.Tensor) -> torch.Tensor:
         """(B, 1, S, S) raster in [0, 1] -> (B, 3, S, S) map in [0, 1] (L/100, z_a, z_b)."""
         features = self._encode(raster)
-        return torch.sigmoid(torch.cat([self._refined(raster, self.density(features)), self.correlation(features)], 1))
+        return torch.sigmoid(torch.cat([self._refined(raster, self.density(features)), self.correlation_logits(raster, features)], 1))
 
     def forward_with_scale(self, raster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(map (B, 3, S, S) as :meth:`forward`, Laplace scale of L/100 (B, 1, S, S) >= :data:`L_SCALE_MIN`); needs ``l_scale``."""
@@ -245,7 +284,7 @@ class DualBranchUNet(nn.Module):
             raise ValueError("this generator has no l_scale head (built with l_scale=False)")
         features = self._encode(raster)
         last = self.density.last_features(features)
-        lab = torch.sigmoid(torch.cat([self._refined(raster, self.density.head(last)), self.correlation(features)], 1))
+        lab = torch.sigmoid(torch.cat([self._refined(raster, self.density.head(last)), self.correlation_logits(raster, features)], 1))
         return lab, F.softplus(self.scale(last)) + L_SCALE_MIN
 
 

@@ -89,6 +89,24 @@ def _layer_name(name: str) -> str:
     return name.removeprefix("generator.")
 
 
+def _encoder_state(convs: list[tuple[str, str | None]], arrays: dict[str, np.ndarray], state: dict[str, torch.Tensor],
+                   root: str, eps: float) -> dict[str, torch.Tensor]:
+    """The state of one encoder (names under ``root``: "" or "correlation_encoder.") from its exported convolutions in
+    order; a batch norm folded into a convolution comes back with identity statistics and the folded bias as its shift
+    (:func:`calibrate_folded_norms` refines them)."""
+    new = {}
+    for k, (weight, bias) in enumerate(convs):
+        prefix = f"{root}first" if k == 0 else f"{root}downs.{k - 1}.1"
+        new[f"{prefix}.weight"] = torch.from_numpy(arrays[weight].copy())
+        if f"{prefix}.bias" in state:  # no batch norm after it: copied as is
+            new[f"{prefix}.bias"] = torch.from_numpy(arrays[bias].copy())
+        else:
+            norm, channels = f"{root}downs.{k - 1}.2", arrays[weight].shape[0]
+            new.update({f"{norm}.weight": torch.ones(channels), f"{norm}.bias": torch.from_numpy(arrays[bias].copy()),
+                        f"{norm}.running_mean": torch.zeros(channels), f"{norm}.running_var": torch.full((channels,), 1.0 - eps)})
+    return new
+
+
 def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 12, max_channels: int = 96,
                         l_scale: bool = False, initial_scale: float = INITIAL_SCALE) -> DualBranchUNet:
     """A nearest-upsampling :class:`DualBranchUNet` whose eval-mode function is the exported model's (see module docstring);
@@ -102,26 +120,19 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
     path_width, path_stride = 0, 1
     if "full_res.0.weight" in arrays:  # (C, k * k, 3, 3): C channels on the raster's k x k blocks
         path_width, path_stride = arrays["full_res.0.weight"].shape[0], math.isqrt(arrays["full_res.0.weight"].shape[1])
+    own_encoder = "correlation_encoder.first.weight" in arrays  # the correlation decoder's own encoder, traced after the shared one
     generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, int(path_width),
-                               path_stride).eval()
+                               path_stride, own_encoder).eval()
     init_weights(generator)
     state = generator.state_dict()
     new: dict[str, torch.Tensor] = {}
     try:
-        encoder = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *DualBranchUNet.FULL_RES_MODULES))]
-        if len(encoder) != levels:
-            raise KeyError(f"{len(encoder)} encoder convolutions, expected {levels}")
-        for k, (weight, bias) in enumerate(encoder):
-            prefix = "first" if k == 0 else f"downs.{k - 1}.1"
-            new[f"{prefix}.weight"] = torch.from_numpy(arrays[weight].copy())
-            if f"{prefix}.bias" in state:  # no batch norm after it: copied as is
-                new[f"{prefix}.bias"] = torch.from_numpy(arrays[bias].copy())
-            else:  # folded batch norm: identity statistics, the folded bias as its shift (calibrate_folded_norms refines)
-                norm = f"downs.{k - 1}.2"
-                channels = arrays[weight].shape[0]
-                eps = generator.downs[k - 1][2].eps
-                new.update({f"{norm}.weight": torch.ones(channels), f"{norm}.bias": torch.from_numpy(arrays[bias].copy()),
-                            f"{norm}.running_mean": torch.zeros(channels), f"{norm}.running_var": torch.full((channels,), 1.0 - eps)})
+        encoders = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *DualBranchUNet.FULL_RES_MODULES))]
+        roots = ["", "correlation_encoder."] if own_encoder else [""]
+        if len(encoders) != levels * len(roots):
+            raise KeyError(f"{len(encoders)} encoder convolutions, expected {levels * len(roots)}")
+        for root, start in zip(roots, range(0, len(encoders), levels), strict=True):
+            new.update(_encoder_state(encoders[start : start + levels], arrays, state, root, generator.downs[0][2].eps))
         for branch in ("density", "correlation"):
             for k in range(levels - 1):
                 for field in ("weight", "bias", "running_mean", "running_var"):
@@ -148,7 +159,8 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
 def calibrate_folded_norms(generator: DualBranchUNet, rasters: torch.Tensor) -> None:
     """Give the folded batch norms (those with identity statistics) the statistics of their input on ``rasters``
     (B, 1, S, S) without changing the eval-mode function (module docstring)."""
-    norms = [down[2] for down in generator.downs if len(down) > 2 and isinstance(down[2], nn.BatchNorm2d)]
+    encoders = [generator, *([generator.correlation_encoder] if generator.correlation_encoder is not None else [])]
+    norms = [down[2] for encoder in encoders for down in encoder.downs if len(down) > 2 and isinstance(down[2], nn.BatchNorm2d)]
     folded = [norm for norm in norms if torch.all(norm.weight == 1) and torch.all(norm.running_mean == 0)]
     captured: dict[int, torch.Tensor] = {}
     hooks = [norm.register_forward_hook(lambda module, inputs, output, key=id(norm): captured.__setitem__(key, inputs[0]))
@@ -179,9 +191,10 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
     module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest"})
     hp = module.hparams
     generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, module.generator.l_scale)
-    if generator.full_res_channels:  # the module (and its recorded hyper-parameters) take the exported model's path
+    own_encoder = generator.correlation_encoder is not None
+    if generator.full_res_channels or own_encoder:  # the module (and its recorded hyper-parameters) take the exported model's layers
         module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": generator.full_res_channels,
-                                  "full_res_stride": generator.full_res_stride})
+                                  "full_res_stride": generator.full_res_stride, "correlation_encoder": own_encoder})
     if rasters is not None:
         calibrate_folded_norms(generator, rasters)
     module.generator.load_state_dict(generator.state_dict())

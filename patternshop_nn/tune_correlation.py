@@ -5,11 +5,12 @@
 Only ``generator.correlation`` (the decoder of a, b; :class:`~patternshop_nn.networks.DualBranchUNet`) learns; the
 encoder, the density decoder, the full-resolution path and the ``l_scale`` head keep their weights, so the map's L
 and its predicted Laplace scale are the model's exactly, and so is every figure of L. The decoder's batch-norm
-statistics stay as they are (eval mode). The encoder's features of the first ``shards_per_folder`` shards of each
-pair folder are computed once, each raster and its target under one random symmetry of the square (with
-``--views 2`` also under that symmetry's transpose, so the decoder sees every pattern with its rows as columns), and
-``val_fraction`` of each folder's pairs is held out (all views of a pair on the same side). A batch comes from one folder drawn uniformly, so a small folder (the
-lattices, the cluster processes) counts as much as a large one. The loss is the L1 of a, b over all pixels, as in
+statistics stay as they are (eval mode). The features it reads (its own encoder's where it has one, see
+:mod:`patternshop_nn.tune_encoder`) of the first ``shards_per_folder`` shards of each pair folder are computed once,
+each raster and its target under one random symmetry of the square (with ``--views 2`` also under that symmetry's
+transpose, so the decoder sees every pattern with its rows as columns), and ``val_fraction`` of each folder's pairs
+is held out (all views of a pair on the same side). A batch comes from one folder drawn uniformly, so a small folder
+(the lattices, the cluster processes) counts as much as a large one. The loss is the L1 of a, b over all pixels, as in
 training (:class:`~patternshop_nn.module.Pix2PixModule`); Adam (betas 0.5, 0.999), cosine decay to 0.
 
 The checkpoint it writes (:func:`patternshop_nn.module.save_module_checkpoint`; ``patternshop export`` and
@@ -87,7 +88,7 @@ def folder_features(generator: torch.nn.Module, folder: str | Path, settings: Tu
         raster = torch.cat([dihedral(raster[k : k + 1], code) for k, code in codes])
         targets.append(torch.cat([dihedral(target[k : k + 1], code) for k, code in codes]).half())
         for start in range(0, len(raster), batch_size):
-            levels.append([level.half() for level in generator._encode(raster[start : start + batch_size])])
+            levels.append([level.half() for level in generator.correlation_features(raster[start : start + batch_size])])
     targets_all = torch.cat(targets)
     order = torch.randperm(len(targets_all) // settings.views, generator=generator_rng)  # pairs, then their views
     held = max(1, round(settings.val_fraction * len(order)))

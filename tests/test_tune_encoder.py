@@ -1,38 +1,35 @@
-"""Training the encoder with the correlation decoder, L held (``python -m patternshop_nn.tune_encoder``)."""
+"""Training the correlation decoder with an encoder of its own (``python -m patternshop_nn.tune_encoder``)."""
 
 from __future__ import annotations
 
 import torch
 from test_tune_correlation import assert_the_command_writes_a_checkpoint_that_exports, model, pair_folder
 
+from patternshop_nn.onnx_export import load_module
 from patternshop_nn.tune_encoder import EncoderSettings, folder_pairs, main, tune_encoder
 
 
-def tuned(tmp_path, l_weight: float):
-    """(report, tuned module, starting module) after 60 steps on two folders."""
+def test_the_own_encoder_and_correlation_decoder_learn_and_l_stays_bit_for_bit(tmp_path):
     module, original = model(), model()
-    settings = EncoderSettings(steps=60, batch_size=4, lr=1e-2, val_fraction=0.25, l_weight=l_weight)
+    settings = EncoderSettings(steps=60, batch_size=4, lr=1e-2, val_fraction=0.25)
     rng = torch.Generator().manual_seed(0)
-    folders = [folder_pairs(original.generator.eval(), pair_folder(tmp_path / f"{name}{l_weight}", seed=k), settings, rng)
-               for k, name in enumerate(("one", "two"))]
-    return tune_encoder(module, folders, settings), module, original
-
-
-def test_the_encoder_and_correlation_decoder_learn_and_the_rest_stays(tmp_path):
-    report, module, original = tuned(tmp_path, l_weight=1.0)
+    folders = [folder_pairs(pair_folder(tmp_path / name, seed=k), settings, rng) for k, name in enumerate(("one", "two"))]
+    report = tune_encoder(module, folders, settings)
     for name, before in report["held_out_ab_error_before"].items():
         assert report["held_out_ab_error"][name] < 0.3 * before
-    changed = {k.split(".")[1] for k, v in module.state_dict().items() if not torch.equal(v, original.state_dict()[k])}
-    assert changed == {"first", "downs", "correlation"}
-    assert not any("running_" in k for k, v in module.state_dict().items() if not torch.equal(v, original.state_dict()[k]))
-    assert all(p.requires_grad for p in module.parameters())  # left trainable as it came
+    state, start = module.state_dict(), original.state_dict()
+    changed = {k for k in state if k not in start or not torch.equal(state[k], start[k])}
+    assert changed and all(k.startswith(("generator.correlation_encoder.", "generator.correlation.")) for k in changed)
+    assert not any("running_" in k and k in start for k in changed)  # batch-norm statistics as they were
+    assert module.hparams["correlation_encoder"]
+    x = folders[0].raster[:2].float()
+    with torch.no_grad():
+        (lab, scale), (want_lab, want_scale) = module.generator.forward_with_scale(x), original.generator.eval().forward_with_scale(x)
+    torch.testing.assert_close(lab[:, :1], want_lab[:, :1], rtol=0, atol=0)
+    torch.testing.assert_close(scale, want_scale, rtol=0, atol=0)
+    assert not torch.equal(lab[:, 1:], want_lab[:, 1:])
 
 
-def test_the_l_term_holds_l_to_the_starting_model(tmp_path):
-    held = tuned(tmp_path, l_weight=10.0)[0]["held_out_l_change"]
-    free = tuned(tmp_path, l_weight=0.0)[0]["held_out_l_change"]
-    assert all(held[name] < 0.5 * free[name.replace("10.0", "0.0")] for name in held), (held, free)
-
-
-def test_the_command_writes_a_checkpoint_that_exports(tmp_path, capsys):
-    assert_the_command_writes_a_checkpoint_that_exports(main, "encoder_tuning", "held-out |L - the model's L|", tmp_path, capsys)
+def test_the_command_writes_a_checkpoint_that_exports_and_reloads_with_its_encoder(tmp_path, capsys):
+    assert_the_command_writes_a_checkpoint_that_exports(main, "encoder_tuning", "held-out |a, b - target|", tmp_path, capsys)
+    assert load_module(tmp_path / "tuned.ckpt").generator.correlation_encoder is not None
