@@ -59,6 +59,20 @@ crossed still counts, where the target holds no regular ink, so none follows it.
 of the pixel's, with the gradient of the share itself: the edge's blend pushed red out of it (0.14). Maps of one
 regularity (constant maps, photographs) keep ``R (c - t)``, bit for bit. Measured: docs/synthesis.md, "Border and
 edge strips".
+
+Held shares make the regular count a constant of the run: no move changes ``sum_i s_i``, and a region's count changes
+only through the points at its edges, so what the start's draw left there (a mixed target's points are partly
+independent: `make demo`'s edited map, 6,847 points, step background, shares' total 1.0135 of the target at seed 2,
+0.98 at seed 0) the term could not remove. Its blurs, zero beyond the grid, made the border the cheapest place for
+it, where part of a residual's blur falls outside: the term put it there (seed 2: the outer two cells of each side
+held +51 of the +23 total, the plain path's +4), an excess as a row of points on the border, a deficit as an empty
+band (per side, the points within 0.25 spacings over the inner strips', worst side, median of seeds 0-5: 5.59; the
+emptiest strip of the first spacing 0.00). So split counts take both blurs mirrored at the grid's edges (the cells
+repeated mirrored a blur's reach beyond them, :func:`_mirror`: a uniform residual costs as much at the border as
+inside and pushes nothing) and a target scaled to the held shares' total (:meth:`DensityTerm.hold_shares`): 5.59 ->
+2.94, emptiest 0.00 -> 0.27 (the plain path 1.41 / 0.21; the outer cells +5 of a total 0); bench_fidelity's strips,
+3 seeds, 22 -> 24 of 24. What is left is the points' own excess in the background (+1 to +1.4 % at the end, +2.2 % away
+from the logo; the plain path +0.1 %), which the shares keep and the PCF term presses against the border.
 """
 
 from __future__ import annotations
@@ -66,6 +80,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.sparse
 
 from synthesis.fields import MapFields, _area_matrix
 from synthesis.fields_fast import edge_pass, gaussian_blur, gaussian_taps
@@ -129,7 +144,7 @@ class DensityTerm:
             self.noise = (edge_blur(ones, squared, tuple(t * t for t in self.tau))
                           / edge_blur(ones, squared, tuple(np.ones_like(t) for t in self.tau)))
         self.active = self.weight > 0 and bool(self.mask.max() > 0)
-        self.regular_px, self.side_px, self.shares = None, fields.side_px, None
+        self.regular_px, self.side_px, self.shares, self.mirror, self.regular_target = None, fields.side_px, None, None, None
         if self.mask.max() > self.mask.min():  # a correlation edge: counts split by regularity (see "Correlation edges")
             regular = self.regular_px = regularity(fields.target_table, fields.radii)[fields.colour].astype(np.float64)  # (Hf, Wf)
             (hm, wm), side = density.shape, fields.side_px  # each map pixel takes the field pixel under its centre
@@ -137,12 +152,49 @@ class DensityTerm:
             cols = np.minimum(((np.arange(wm) + 0.5) * (w / wm) * side).astype(np.int64), regular.shape[1] - 1)
             regular_ink = density * regular[rows[:, None], cols[None, :]]
             self.target = (n / max(float(density.sum()), 1e-300)) * (_tent_means(hm, gh) @ regular_ink @ _tent_means(wm, gw).T)
+            self.regular_target = self.target  # the target before hold_shares scales it to the shares' total
+            # the blurs mirrored at the grid's edges ("Correlation edges", "Border"): the cells mirrored a blur's reach
+            mirrors = [_mirror(size, len(taps) // 2) for size, taps in zip(self.shape, self.taps)]
+            self.mirror = tuple(matrix for matrix, _ in mirrors)
+            self.tau = _mirrored_tau(self.tau, *(index for _, index in mirrors))
+            self.noise = None
+            if self.tau is not None:
+                ones, squared = np.ones((len(mirrors[0][1]), len(mirrors[1][1]))), tuple(t * t for t in self.taps)
+                self.noise = self._crop(edge_blur(ones, squared, tuple(t * t for t in self.tau))
+                                        / edge_blur(ones, squared, tuple(np.ones_like(t) for t in self.tau)))
 
     def _blur(self, values: np.ndarray) -> np.ndarray:
         return gaussian_blur(values, self.sigma, TRUNCATE, taps=self.taps)  # scipy.ndimage.gaussian_filter's, mode "constant"
 
+    def _crop(self, values: np.ndarray) -> np.ndarray:
+        """The grid's cells (:attr:`shape`) of ``values`` on the mirrored grid (:func:`_mirror`)."""
+        (ky, kx), (gh, gw) = (len(t) // 2 for t in self.taps), self.target.shape
+        return values[ky : ky + gh, kx : kx + gw]
+
+    def _mirrored_adjoint(self, counts: np.ndarray, fast: bool = True) -> tuple[float, np.ndarray]:
+        """:meth:`_adjoint` of split counts with the blurs mirrored at the grid's edges: ``r`` repeated mirrored a
+        blur's reach beyond them (``My r Mx'``, :func:`_mirror`), blurred, the grid's own cells scored; ``u`` the
+        transpose's (the mirrored cells' shares added back onto theirs)."""
+        (my, mx), size = self.mirror, self.cells
+        residual = my @ (mx @ (counts - self.target).T).T
+        blurred = self._crop(self._blur(residual))
+        spread = np.zeros_like(residual)
+        self._crop(spread)[...] = blurred
+        if self.tau is None:
+            loss, u = float(np.vdot(blurred, blurred)), self._blur(spread)
+        else:
+            edged = self._crop(edge_blur(residual, self.taps, self.tau, fast))
+            scaled = np.zeros_like(residual)
+            self._crop(scaled)[...] = edged / self.noise
+            plain = 1.0 - EDGE_SHARE
+            loss = plain * float(np.vdot(blurred, blurred)) + EDGE_SHARE * float(np.vdot(edged, self._crop(scaled)))
+            u = plain * self._blur(spread) + EDGE_SHARE * edge_blur(scaled, self.taps, self.tau, fast, adjoint=True)
+        return self.weight * loss / (size * self.variance), (2.0 * self.weight / (size * self.variance)) * (my.T @ (mx.T @ u.T).T)
+
     def _adjoint(self, counts: np.ndarray, fast: bool = True) -> tuple[float, np.ndarray]:
         """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell (``fast``: numba's edge blur)."""
+        if self.mirror is not None:
+            return self._mirrored_adjoint(counts, fast)
         gate = self.mask if self.regular_px is None else 1.0  # split counts carry their regular shares already
         residual = gate * (counts - self.target)
         blurred = self._blur(residual)
@@ -181,7 +233,8 @@ class DensityTerm:
         the points' order kept (see the module docstring, "Correlation edges"); nothing where the regularity is even."""
         self.shares = None
         if self.regular_px is not None:
-            self.shares = self.shares_of(xy)
+            self.shares = self.shares_of(xy)  # and the target scaled to their total, which no move changes
+            self.target = self.regular_target * (float(self.shares.sum()) / max(float(self.regular_target.sum()), 1e-300))
 
     def shares_of(self, xy: np.ndarray) -> np.ndarray:
         """(n,) the points' regular shares in [0, 1]: those held (:meth:`hold_shares`), else their field pixels'."""
@@ -282,6 +335,28 @@ def _tent_means(pixels: int, cells: int) -> np.ndarray:
     centres = np.arange(cells + 2 * PAD)[:, None] - PAD + 0.5
     steps = integral(bounds[None, :] - centres)
     return (steps[:, 1:] - steps[:, :-1]) / width
+
+
+def _mirror(cells: int, reach: int) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
+    """An axis of ``cells`` cells repeated mirrored ``reach`` cells beyond each end (``numpy.pad``'s "symmetric"): the
+    sparse (cells + 2 reach, cells) matrix that does it and (cells + 2 reach,) the cell each mirrored cell repeats."""
+    index = np.pad(np.arange(cells), reach, mode="symmetric")
+    return scipy.sparse.csr_matrix((np.ones(len(index)), (np.arange(len(index)), index)), shape=(len(index), cells)), index
+
+
+def _mirrored_tau(tau: tuple[np.ndarray, np.ndarray] | None, rows: np.ndarray, columns: np.ndarray):
+    """:func:`transmittances` ``tau`` (across (H, W - 1), down (W, H - 1)) on the mirrored grid whose cells repeat the
+    ``rows`` and ``columns`` of the grid (:func:`_mirror`): a cell and its mirror image pass all."""
+    if tau is None:
+        return None
+
+    def seam(values: np.ndarray, index: np.ndarray) -> np.ndarray:  # between mirrored cells index[j], index[j + 1]
+        a, b = index[:-1], index[1:]
+        ones = np.ones((values.shape[0], 1))
+        return np.concatenate([values, ones], axis=1)[:, np.where(a == b, values.shape[1], np.minimum(a, b))]
+
+    across, down = tau
+    return (np.ascontiguousarray(seam(across[rows], columns)), np.ascontiguousarray(seam(down[columns], rows)))
 
 
 def _tent_filter(values: np.ndarray) -> np.ndarray:

@@ -348,6 +348,24 @@ def test_tone_term_leaves_the_clustered_side_of_a_correlation_edge_alone():
     assert np.all(gradient[red] == 0.0) and np.abs(gradient[blue]).min(axis=1).max() > 0
 
 
+def test_split_tone_term_parks_no_residual_at_the_border():
+    """Held shares fix the regular count's total, so what the start left of it the term cannot remove; with its blurs
+    zero beyond the grid it pushed such a residual onto the border (docs: the module docstring, "Correlation edges").
+    The target is scaled to the held shares' total, and a uniform residual pushes no point: the blurs mirror at the
+    grid's edges (the plain blur alone here: the edge-stopping one stops at the correlation edge by design)."""
+    from synthesis.density_term import DensityTerm
+
+    fields = MapFields.build(split_map(), 800, load_palette())
+    term = DensityTerm(split_map(), fields, weight=1e4, scale=3.0)
+    xy = inhomogeneous_poisson(split_map(), 800, 3)
+    term.hold_shares(xy)
+    assert term.target.sum() == pytest.approx(term.shares.sum(), rel=1e-12)
+    assert term.regular_target.sum() == pytest.approx(200, rel=1e-3)
+    term.tau = term.noise = None
+    _, u = term._adjoint(term.target + 0.01)
+    assert np.ptp(u) < 1e-9 * np.abs(u).max()
+
+
 def test_split_tone_target_is_what_the_map_splats():
     """The split target is the weighted tent count that points drawn from the map's ink splat (2M points, each pixel
     uniform): column means agree within 1.5 % of the blue side's, at the correlation edge and the borders too."""
