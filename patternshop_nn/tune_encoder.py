@@ -15,8 +15,9 @@ pair under a fresh random symmetry of the square; batch-norm statistics stay as 
 0.5, 0.999), cosine decay to 0. ``val_fraction`` of each folder's pairs is held out; the checkpoint records per
 folder the held-out a, b error before and after, in ab units (0..255).
 
-About 0.8 s a step of 8 256-px pairs on one thread; not resumable, rerun it. The encoder adds 3 % to a network
-pass (14 ms of 469 at 704 px in torch, one thread).
+About 0.6 s a step of 8 256-px pairs on one thread; not resumable, rerun it. The encoder costs 3 % of a 704-px pass
+in torch (14 of 469 ms) but 6-17 % in ONNX Runtime (a 20,000-point ``infer`` pass 0.121 -> 0.129-0.142 s,
+``bench/bench_infer.py --quick``, one thread): ``convert``'s 10 files/s would need it back.
 """
 
 from __future__ import annotations
