@@ -1,6 +1,6 @@
 """Give a generator's correlation decoder an encoder of its own and train the two: a, b learn, L stays bit for bit.
 
-``python -m patternshop_nn.tune_encoder MODEL.ckpt OUT.ckpt --pairs DIR [DIR ...] [--steps 2000]``
+``python -m patternshop_nn.tune_encoder MODEL.ckpt OUT.ckpt --pairs DIR [DIR ...] [--steps 1200]``
 
 :mod:`patternshop_nn.tune_correlation` trains the correlation decoder on the shared encoder's features as they are;
 where those features tell two patterns apart only in one orientation (a hexagonal lattice whose rows run along y
@@ -41,11 +41,12 @@ if TYPE_CHECKING:  # importing the module pulls in Lightning
 
 @dataclass(frozen=True)
 class EncoderSettings:
-    """The stage's training (defaults: trial v20's candidate, ``docs/network.md``)."""
+    """The stage's training (defaults: trial v20's encC, from a decoder-tuned model; encB's lr 1e-4 from v18 lost the
+    lattices, ``docs/network.md``)."""
 
-    steps: int = 2000
+    steps: int = 1200
     batch_size: int = 8
-    lr: float = 1e-4
+    lr: float = 2e-5
     shards_per_folder: int = 8
     val_fraction: float = 0.125
     seed: int = 0
