@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 
 
 def training_parser(prog: str, doc: str, model_help: str, out_help: str, pairs_help: str) -> argparse.ArgumentParser:
@@ -32,3 +33,29 @@ def add_shards_option(parser: argparse.ArgumentParser, default: int) -> None:
     """``--shards-per-folder N``: the first N shards of each pair folder."""
     parser.add_argument("--shards-per-folder", type=int, default=default,
                         help=f"the first N shards of each folder (default {default})")
+
+
+def tune_from_folders(args: argparse.Namespace, settings: object, cache: Callable, tune: Callable, record: str) -> None:
+    """The shared run of a tuning command: check every ``--pairs`` folder before work, load ``args.model``, cache each
+    folder (``cache(module, folder, rng)``, one generator seeded ``settings.seed`` for all), ``tune(module, folders,
+    settings, progress=True)`` -> report, write ``args.out`` with the report under ``record`` and print the held-out
+    a, b error (its ``held_out_ab_error_before`` and ``held_out_ab_error``, per folder) before and after."""
+    import numpy as np
+    import torch
+    from tqdm import tqdm
+
+    from data_gen.shards import require_shards
+    from patternshop_nn.module import save_module_checkpoint
+    from patternshop_nn.onnx_export import load_module
+
+    torch.set_num_threads(args.threads)
+    for folder in args.pairs:  # before any work
+        require_shards(folder)
+    module = load_module(args.model)  # a missing or foreign file: one line
+    rng = torch.Generator().manual_seed(settings.seed)
+    folders = [cache(module, folder, rng) for folder in tqdm(args.pairs, desc="folders", unit="folder")]
+    report = tune(module, folders, settings, progress=True)
+    save_module_checkpoint(module, args.out, tuned_from=args.model, **{record: {**report, "folders": args.pairs}})
+    before, after = report["held_out_ab_error_before"], report["held_out_ab_error"]
+    print(f"wrote {args.out}: held-out |a, b - target| {np.mean(list(after.values())):.3f} ab units on average over "
+          f"{len(after)} folders (before {np.mean(list(before.values())):.3f})")

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from patternshop_nn.short_training import add_shards_option, add_training_options, training_parser
+from patternshop_nn.short_training import add_shards_option, add_training_options, training_parser, tune_from_folders
 from synthesis.errors import PatternshopError, run_module_cli
 
 if TYPE_CHECKING:  # importing the module pulls in Lightning
@@ -135,22 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     add_training_options(parser, defaults, "pairs")
 
     def run(args: argparse.Namespace) -> None:
-        from data_gen.shards import require_shards
-        from patternshop_nn.module import save_module_checkpoint
-        from patternshop_nn.onnx_export import load_module
-
-        torch.set_num_threads(args.threads)
         settings = EncoderSettings(args.steps, args.batch_size, args.lr, args.shards_per_folder, seed=args.seed)
-        for folder in args.pairs:  # before any work
-            require_shards(folder)
-        module = load_module(args.model)  # a missing or foreign file: one line
-        rng = torch.Generator().manual_seed(settings.seed)
-        folders = [folder_pairs(folder, settings, rng) for folder in tqdm(args.pairs, desc="pairs", unit="folder")]
-        report = tune_encoder(module, folders, settings, progress=True)
-        save_module_checkpoint(module, args.out, tuned_from=args.model, encoder_tuning={**report, "folders": args.pairs})
-        before, after = report["held_out_ab_error_before"], report["held_out_ab_error"]
-        print(f"wrote {args.out}: held-out |a, b - target| {np.mean(list(after.values())):.3f} ab units on average over "
-              f"{len(after)} folders (before {np.mean(list(before.values())):.3f})")
+        tune_from_folders(args, settings, lambda module, folder, rng: folder_pairs(folder, settings, rng), tune_encoder,
+                          "encoder_tuning")
 
     return run_module_cli(parser, run, argv)
 
