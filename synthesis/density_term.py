@@ -166,48 +166,53 @@ class DensityTerm:
     def _blur(self, values: np.ndarray) -> np.ndarray:
         return gaussian_blur(values, self.sigma, TRUNCATE, taps=self.taps)  # scipy.ndimage.gaussian_filter's, mode "constant"
 
+    def _expand(self, values: np.ndarray) -> np.ndarray:
+        """``values`` (Gh, Gw) on the grid the blurs run on: repeated mirrored a blur's reach beyond the edges for split
+        counts (``My v Mx'``, :func:`_mirror`), else as they are."""
+        if self.mirror is None:
+            return values
+        my, mx = self.mirror
+        return my @ (mx @ values.T).T
+
     def _crop(self, values: np.ndarray) -> np.ndarray:
-        """The grid's cells (:attr:`shape`) of ``values`` on the mirrored grid (:func:`_mirror`)."""
+        """The grid's own cells (Gh, Gw) of ``values`` on the blurs' grid (:meth:`_expand`)."""
+        if self.mirror is None:
+            return values
         (ky, kx), (gh, gw) = (len(t) // 2 for t in self.taps), self.target.shape
         return values[ky : ky + gh, kx : kx + gw]
 
-    def _mirrored_adjoint(self, counts: np.ndarray, fast: bool = True) -> tuple[float, np.ndarray]:
-        """:meth:`_adjoint` of split counts with the blurs mirrored at the grid's edges: ``r`` repeated mirrored a
-        blur's reach beyond them (``My r Mx'``, :func:`_mirror`), blurred, the grid's own cells scored; ``u`` the
-        transpose's (the mirrored cells' shares added back onto theirs)."""
-        (my, mx), size = self.mirror, self.cells
-        residual = my @ (mx @ (counts - self.target).T).T
-        blurred = self._crop(self._blur(residual))
-        spread = np.zeros_like(residual)
-        self._crop(spread)[...] = blurred
-        if self.tau is None:
-            loss, u = float(np.vdot(blurred, blurred)), self._blur(spread)
-        else:
-            edged = self._crop(edge_blur(residual, self.taps, self.tau, fast))
-            scaled = np.zeros_like(residual)
-            self._crop(scaled)[...] = edged / self.noise
-            plain = 1.0 - EDGE_SHARE
-            loss = plain * float(np.vdot(blurred, blurred)) + EDGE_SHARE * float(np.vdot(edged, self._crop(scaled)))
-            u = plain * self._blur(spread) + EDGE_SHARE * edge_blur(scaled, self.taps, self.tau, fast, adjoint=True)
-        return self.weight * loss / (size * self.variance), (2.0 * self.weight / (size * self.variance)) * (my.T @ (mx.T @ u.T).T)
+    def _embed(self, values: np.ndarray) -> np.ndarray:
+        """The transpose of :meth:`_crop`: the grid's cells (Gh, Gw) on the blurs' grid, zero beyond."""
+        if self.mirror is None:
+            return values
+        out = np.zeros((self.mirror[0].shape[0], self.mirror[1].shape[0]))
+        self._crop(out)[...] = values
+        return out
+
+    def _fold(self, values: np.ndarray) -> np.ndarray:
+        """The transpose of :meth:`_expand`: each mirrored cell's value added back onto the cell it repeats."""
+        if self.mirror is None:
+            return values
+        my, mx = self.mirror
+        return my.T @ (mx.T @ values.T).T
 
     def _adjoint(self, counts: np.ndarray, fast: bool = True) -> tuple[float, np.ndarray]:
-        """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell (``fast``: numba's edge blur)."""
-        if self.mirror is not None:
-            return self._mirrored_adjoint(counts, fast)
+        """Loss and ``u`` (Gh, Gw), dL/dcounts, from the points' counts per cell (``fast``: numba's edge blur). Split
+        counts blur a residual mirrored at the grid's edges and score the grid's own cells (:meth:`_expand`)."""
         gate = self.mask if self.regular_px is None else 1.0  # split counts carry their regular shares already
-        residual = gate * (counts - self.target)
-        blurred = self._blur(residual)
+        residual = self._expand(gate * (counts - self.target))
+        blurred = self._crop(self._blur(residual))
         size = self.cells
         if self.tau is None:
             loss = self.weight * float(np.vdot(blurred, blurred)) / (size * self.variance)
-            return loss, (2.0 * self.weight / (size * self.variance)) * gate * self._blur(blurred)
-        edged = edge_blur(residual, self.taps, self.tau, fast)
+            return loss, (2.0 * self.weight / (size * self.variance)) * gate * self._fold(self._blur(self._embed(blurred)))
+        edged = self._crop(edge_blur(residual, self.taps, self.tau, fast))
         scaled = edged / self.noise
         plain = 1.0 - EDGE_SHARE
         loss = self.weight * (plain * float(np.vdot(blurred, blurred)) + EDGE_SHARE * float(np.vdot(edged, scaled)))
-        u = plain * self._blur(blurred) + EDGE_SHARE * edge_blur(scaled, self.taps, self.tau, fast, adjoint=True)
-        return loss / (size * self.variance), (2.0 * self.weight / (size * self.variance)) * gate * u
+        u = (plain * self._blur(self._embed(blurred))
+             + EDGE_SHARE * edge_blur(self._embed(scaled), self.taps, self.tau, fast, adjoint=True))
+        return loss / (size * self.variance), (2.0 * self.weight / (size * self.variance)) * gate * self._fold(u)
 
     def __call__(self, xy: np.ndarray, gradient: np.ndarray | None = None) -> float:
         """Loss at xy (n, 2); adds its gradient into ``gradient`` (n, 2) when given (numba kernels)."""
