@@ -131,16 +131,31 @@ def _up(in_channels: int, out_channels: int, dropout: float, upsample: str) -> n
 
 
 class Encoder(nn.Module):
-    """A U-Net encoder: ``first`` (a 4x4 stride-2 convolution) then ``downs`` (:func:`_down`) -> features, first level first."""
+    """A U-Net encoder: ``first`` (a 4x4 stride-2 convolution) then ``downs`` (:func:`_down`) -> features, first level first.
 
-    def __init__(self, in_channels: int, widths: list[int]) -> None:
+    ``shared_levels`` > 0: the first that many levels are another encoder's (given to :meth:`forward`); this one has
+    no ``first`` and an ``nn.Identity`` in their ``downs`` places, so its layers keep their levels' names.
+    """
+
+    def __init__(self, in_channels: int, widths: list[int], shared_levels: int = 0) -> None:
         super().__init__()
-        self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1)
-        self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < len(widths) - 1) for k in range(1, len(widths)))
+        if not 0 <= shared_levels < len(widths):
+            raise ValueError(f"shared_levels must be in 0 .. {len(widths) - 1}, got {shared_levels}")
+        self.shared_levels = shared_levels
+        self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1) if shared_levels == 0 else None
+        self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < len(widths) - 1) if k >= shared_levels else nn.Identity()
+                                   for k in range(1, len(widths)))
 
-    def forward(self, raster: torch.Tensor) -> list[torch.Tensor]:
-        features = [self.first(raster)]
-        for down in self.downs:
+    def forward(self, raster: torch.Tensor, shared: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
+        """Features of ``raster`` (B, C, S, S), each level half the last's side; ``shared``: the other encoder's
+        features (at least ``shared_levels`` of them, first first), needed when ``shared_levels`` > 0."""
+        if self.first is not None:
+            features = [self.first(raster)]
+        elif shared is None or len(shared) < self.shared_levels:
+            raise ValueError(f"this encoder starts after {self.shared_levels} shared levels: pass their features")
+        else:
+            features = list(shared[: self.shared_levels])
+        for down in self.downs[len(features) - 1 :]:
             features.append(down(features[-1]))
         return features
 
@@ -192,11 +207,14 @@ class DualBranchUNet(nn.Module):
         correlation_encoder: the correlation decoder reads an encoder of its own (``correlation_encoder``, an
             :class:`Encoder` of the same widths) instead of the density decoder's: a, b can learn what the shared
             features hide while L and its scale stay as they are (:meth:`own_correlation_encoder` starts it as a copy).
+        correlation_shared_levels: with ``correlation_encoder``, the first this many levels stay the shared encoder's
+            (the own one starts from their features): the own encoder costs less (0: all its own).
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
                  dropout: float = 0.0, upsample: str = "transposed", l_scale: bool = False,
-                 full_res_channels: int = 0, full_res_stride: int = 1, correlation_encoder: bool = False) -> None:
+                 full_res_channels: int = 0, full_res_stride: int = 1, correlation_encoder: bool = False,
+                 correlation_shared_levels: int = 0) -> None:
         super().__init__()
         if levels < 2:
             raise ValueError(f"levels must be at least 2, got {levels}")
@@ -212,7 +230,7 @@ class DualBranchUNet(nn.Module):
         self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < levels - 1) for k in range(1, levels))
         self.density = Decoder(widths, 1, dropout, upsample)
         self.correlation = Decoder(widths, 2, dropout, upsample)
-        self.correlation_encoder = Encoder(in_channels, widths) if correlation_encoder else None
+        self.correlation_encoder = Encoder(in_channels, widths, correlation_shared_levels) if correlation_encoder else None
         if l_scale:
             self.scale = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], 1, upsample, bias=True))
         self.full_res_channels = full_res_channels
@@ -245,33 +263,43 @@ class DualBranchUNet(nn.Module):
         blocks = torch.cat([self.full_res(F.pixel_unshuffle(raster, k)), F.pixel_unshuffle(l_logit, k)], 1)
         return l_logit + F.pixel_shuffle(self.refine(blocks), k)
 
-    def _encode(self, raster: torch.Tensor) -> list[torch.Tensor]:
-        """The encoder's features, first level first."""
+    def _encode(self, raster: torch.Tensor, levels: int | None = None) -> list[torch.Tensor]:
+        """The encoder's features, first level first (the first ``levels`` of them; None: all)."""
         side = raster.shape[-1]
         if raster.shape[-2] != side or side % 2**self.levels:
             raise ValueError(f"raster must be square with a side divisible by {2**self.levels}, got {tuple(raster.shape[-2:])}")
         features = [self.first(raster)]
-        for down in self.downs:
+        for down in self.downs[: (self.levels if levels is None else levels) - 1]:
             features.append(down(features[-1]))
         return features
 
-    def own_correlation_encoder(self) -> None:
-        """Give the correlation decoder an encoder of its own, a copy of the shared one (the function is unchanged)."""
+    def own_correlation_encoder(self, shared_levels: int = 0) -> None:
+        """Give the correlation decoder an encoder of its own, a copy of the shared one from level ``shared_levels``
+        on (the levels before stay shared); the function is unchanged. A generator that has one keeps it."""
         if self.correlation_encoder is None:
-            self.correlation_encoder = Encoder(self.first.in_channels, [self.first.out_channels, *(d[1].out_channels for d in self.downs)])
-            self.correlation_encoder.first.load_state_dict(self.first.state_dict())
-            self.correlation_encoder.downs.load_state_dict(self.downs.state_dict())
+            widths = [self.first.out_channels, *(d[1].out_channels for d in self.downs)]
+            self.correlation_encoder = Encoder(self.first.in_channels, widths, shared_levels)
+            if self.correlation_encoder.first is not None:
+                self.correlation_encoder.first.load_state_dict(self.first.state_dict())
+            for own, shared in zip(self.correlation_encoder.downs, self.downs, strict=True):
+                if not isinstance(own, nn.Identity):  # a shared level's place
+                    own.load_state_dict(shared.state_dict())
             self.correlation_encoder.train(self.training)  # a new module trains; it takes the generator's mode
 
-    def correlation_features(self, raster: torch.Tensor) -> list[torch.Tensor]:
-        """The features the correlation decoder reads: its own encoder's, else the shared one's (first level first)."""
-        return self._encode(raster) if self.correlation_encoder is None else self.correlation_encoder(raster)
+    def correlation_features(self, raster: torch.Tensor, features: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
+        """The features the correlation decoder reads: its own encoder's, else the shared one's (first level first);
+        ``features``: the shared encoder's, when computed."""
+        own = self.correlation_encoder
+        if own is None:
+            return features if features is not None else self._encode(raster)
+        shared = None
+        if own.shared_levels:
+            shared = features if features is not None else self._encode(raster, own.shared_levels)
+        return own(raster, shared)
 
     def correlation_logits(self, raster: torch.Tensor, features: list[torch.Tensor] | None = None) -> torch.Tensor:
         """(B, 2, S, S) the a, b logits of a raster (B, 1, S, S); ``features``: the shared encoder's, when computed."""
-        if features is None or self.correlation_encoder is not None:
-            features = self.correlation_features(raster)
-        return self.correlation(features)
+        return self.correlation(self.correlation_features(raster, features))
 
     def forward(self, raster: torch.Tensor) -> torch.Tensor:
         """(B, 1, S, S) raster in [0, 1] -> (B, 3, S, S) map in [0, 1] (L/100, z_a, z_b)."""

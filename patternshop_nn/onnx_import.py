@@ -90,12 +90,13 @@ def _layer_name(name: str) -> str:
 
 
 def _encoder_state(convs: list[tuple[str, str | None]], arrays: dict[str, np.ndarray], state: dict[str, torch.Tensor],
-                   root: str, eps: float) -> dict[str, torch.Tensor]:
+                   root: str, eps: float, first_level: int = 0) -> dict[str, torch.Tensor]:
     """The state of one encoder (names under ``root``: "" or "correlation_encoder.") from its exported convolutions in
-    order; a batch norm folded into a convolution comes back with identity statistics and the folded bias as its shift
-    (:func:`calibrate_folded_norms` refines them)."""
+    order, the first of level ``first_level`` (an own encoder after shared levels); a batch norm folded into a
+    convolution comes back with identity statistics and the folded bias as its shift (:func:`calibrate_folded_norms`
+    refines them)."""
     new = {}
-    for k, (weight, bias) in enumerate(convs):
+    for k, (weight, bias) in enumerate(convs, start=first_level):
         prefix = f"{root}first" if k == 0 else f"{root}downs.{k - 1}.1"
         new[f"{prefix}.weight"] = torch.from_numpy(arrays[weight].copy())
         if f"{prefix}.bias" in state:  # no batch norm after it: copied as is
@@ -120,19 +121,22 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
     path_width, path_stride = 0, 1
     if "full_res.0.weight" in arrays:  # (C, k * k, 3, 3): C channels on the raster's k x k blocks
         path_width, path_stride = arrays["full_res.0.weight"].shape[0], math.isqrt(arrays["full_res.0.weight"].shape[1])
-    own_encoder = "correlation_encoder.first.weight" in arrays  # the correlation decoder's own encoder, traced after the shared one
-    generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, int(path_width),
-                               path_stride, own_encoder).eval()
-    init_weights(generator)
-    state = generator.state_dict()
+    # the correlation decoder's own encoder (its last level keeps its name), traced after the shared one
+    own_encoder = any(name.startswith("correlation_encoder.") for name in arrays)
+    encoders = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *DualBranchUNet.FULL_RES_MODULES))]
+    shared_levels = 2 * levels - len(encoders) if own_encoder else 0  # the own encoder's levels: those past the shared ones
     new: dict[str, torch.Tensor] = {}
     try:
-        encoders = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *DualBranchUNet.FULL_RES_MODULES))]
-        roots = ["", "correlation_encoder."] if own_encoder else [""]
-        if len(encoders) != levels * len(roots):
-            raise KeyError(f"{len(encoders)} encoder convolutions, expected {levels * len(roots)}")
-        for root, start in zip(roots, range(0, len(encoders), levels), strict=True):
-            new.update(_encoder_state(encoders[start : start + levels], arrays, state, root, generator.downs[0][2].eps))
+        if len(encoders) not in (range(levels + 1, 2 * levels + 1) if own_encoder else (levels,)):
+            raise KeyError(f"{len(encoders)} encoder convolutions for {levels} levels")
+        generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, int(path_width),
+                                   path_stride, own_encoder, shared_levels).eval()
+        init_weights(generator)
+        state = generator.state_dict()
+        eps = generator.downs[0][2].eps
+        new.update(_encoder_state(encoders[:levels], arrays, state, "", eps))
+        if own_encoder:
+            new.update(_encoder_state(encoders[levels:], arrays, state, "correlation_encoder.", eps, shared_levels))
         for branch in ("density", "correlation"):
             for k in range(levels - 1):
                 for field in ("weight", "bias", "running_mean", "running_var"):
@@ -160,7 +164,8 @@ def calibrate_folded_norms(generator: DualBranchUNet, rasters: torch.Tensor) -> 
     """Give the folded batch norms (those with identity statistics) the statistics of their input on ``rasters``
     (B, 1, S, S) without changing the eval-mode function (module docstring)."""
     encoders = [generator, *([generator.correlation_encoder] if generator.correlation_encoder is not None else [])]
-    norms = [down[2] for encoder in encoders for down in encoder.downs if len(down) > 2 and isinstance(down[2], nn.BatchNorm2d)]
+    norms = [down[2] for encoder in encoders for down in encoder.downs
+             if isinstance(down, nn.Sequential) and len(down) > 2 and isinstance(down[2], nn.BatchNorm2d)]
     folded = [norm for norm in norms if torch.all(norm.weight == 1) and torch.all(norm.running_mean == 0)]
     captured: dict[int, torch.Tensor] = {}
     hooks = [norm.register_forward_hook(lambda module, inputs, output, key=id(norm): captured.__setitem__(key, inputs[0]))
@@ -193,8 +198,10 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
     generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, module.generator.l_scale)
     own_encoder = generator.correlation_encoder is not None
     if generator.full_res_channels or own_encoder:  # the module (and its recorded hyper-parameters) take the exported model's layers
+        shared_levels = generator.correlation_encoder.shared_levels if own_encoder else 0
         module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": generator.full_res_channels,
-                                  "full_res_stride": generator.full_res_stride, "correlation_encoder": own_encoder})
+                                  "full_res_stride": generator.full_res_stride, "correlation_encoder": own_encoder,
+                                  "correlation_shared_levels": shared_levels})
     if rasters is not None:
         calibrate_folded_norms(generator, rasters)
     module.generator.load_state_dict(generator.state_dict())

@@ -8,10 +8,11 @@ read as another pattern than the same lattice with its rows along x), no decoder
 the shared encoder moves L (trial v20, ``docs/network.md``). This tool gives the correlation decoder its own encoder
 (:meth:`~patternshop_nn.networks.DualBranchUNet.own_correlation_encoder`: a copy of the shared one, so training starts
 at the model's function; a model that has one keeps it) and trains that encoder and ``generator.correlation``
-together. The shared encoder, the density decoder, the full-resolution path and the ``l_scale`` head are not on
+together. With ``--shared-levels K`` the own encoder starts from the shared encoder's first K levels (their
+features are computed once; they and the skips they feed stay the shared ones), so it costs less. The shared encoder, the density decoder, the full-resolution path and the ``l_scale`` head are not on
 their path, so L and its Laplace scale are the model's bit for bit. The loss is the L1 of a, b (z in [0, 1])
-against the pairs' targets over all pixels, as in training; each batch comes from one folder drawn uniformly, each
-pair under a fresh random symmetry of the square; batch-norm statistics stay as trained (eval mode); Adam (betas
+against the pairs' targets over all pixels, as in training; each batch comes from one folder, drawn uniformly or in
+proportion to ``--folder-weights``, each pair under a fresh random symmetry of the square; batch-norm statistics stay as trained (eval mode); Adam (betas
 0.5, 0.999), cosine decay to 0. ``val_fraction`` of each folder's pairs is held out; the checkpoint records per
 folder the held-out a, b error before and after, in ab units (0..255).
 
@@ -50,6 +51,8 @@ class EncoderSettings:
     shards_per_folder: int = 8
     val_fraction: float = 0.125
     seed: int = 0
+    folder_weights: tuple[float, ...] | None = None  # one per folder, batches drawn in proportion; None: uniform
+    shared_levels: int = 0  # levels the new encoder leaves to the shared one (cheaper); a model with its own keeps it
 
 
 @dataclass
@@ -105,16 +108,28 @@ def tune_encoder(module: Pix2PixModule, folders: list[FolderPairs], settings: En
     module docstring); returns the report: per folder the held-out a, b error (ab units) before and after."""
     if settings.steps < 1 or settings.batch_size < 1 or not folders:
         raise PatternshopError(f"steps and batch_size must be >= 1 and a folder given, got {settings}, {len(folders)} folders")
+    if not 0 <= settings.shared_levels < module.generator.levels:
+        raise PatternshopError(f"--shared-levels must be in 0 .. {module.generator.levels - 1}, got {settings.shared_levels}")
+    weights = settings.folder_weights
+    if weights is not None and (len(weights) != len(folders) or min(weights) < 0 or sum(weights) <= 0):
+        raise PatternshopError(f"--folder-weights needs one weight >= 0 per folder ({len(folders)}), not all 0; got {list(weights)}")
     generator = module.generator.eval()  # batch-norm statistics and dropout as trained throughout
-    generator.own_correlation_encoder()
+    generator.own_correlation_encoder(settings.shared_levels)
     module.hparams["correlation_encoder"] = True  # the checkpoint rebuilds the encoder
+    module.hparams["correlation_shared_levels"] = generator.correlation_encoder.shared_levels
     before = {data.name: round(held_out_ab_error(generator, data), 4) for data in folders}
     trained = [*generator.correlation_encoder.parameters(), *generator.correlation.parameters()]  # all on the a, b path
+    for parameter in generator.parameters():  # the shared levels' features need no gradient
+        parameter.requires_grad_(False)
+    for parameter in trained:
+        parameter.requires_grad_(True)
     rng = torch.Generator().manual_seed(settings.seed)
     optimizer = torch.optim.Adam(trained, lr=settings.lr, betas=(0.5, 0.999))
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, settings.steps)
     for _ in tqdm(range(settings.steps), desc="tune a, b encoder", unit="step", disable=not progress):
-        data = folders[int(torch.randint(len(folders), (1,), generator=rng))]
+        drawn = torch.randint(len(folders), (1,), generator=rng) if weights is None else \
+            torch.multinomial(torch.tensor(weights, dtype=torch.float64), 1, generator=rng)
+        data = folders[int(drawn)]
         batch = data.train[torch.randint(len(data.train), (settings.batch_size,), generator=rng)]
         loss = _ab_error(generator, data, batch, torch.randint(8, (settings.batch_size,), generator=rng).tolist())
         optimizer.zero_grad()
@@ -133,9 +148,17 @@ def main(argv: list[str] | None = None) -> int:
                              "checkpoint to write", "pair folders it learns on, each sampled equally")
     add_shards_option(parser, defaults.shards_per_folder)
     add_training_options(parser, defaults, "pairs")
+    parser.add_argument("--folder-weights", type=float, nargs="+", metavar="W",
+                        help="one weight per --pairs folder, in order: batches come from a folder in proportion to its "
+                             "weight (default: every folder equally)")
+    parser.add_argument("--shared-levels", type=int, default=defaults.shared_levels,
+                        help="encoder levels the correlation decoder keeps sharing with the density decoder; its own "
+                             "encoder starts after them and costs less (default 0: all its own)")
 
     def run(args: argparse.Namespace) -> None:
-        settings = EncoderSettings(args.steps, args.batch_size, args.lr, args.shards_per_folder, seed=args.seed)
+        weights = tuple(args.folder_weights) if args.folder_weights else None
+        settings = EncoderSettings(args.steps, args.batch_size, args.lr, args.shards_per_folder, seed=args.seed,
+                                   folder_weights=weights, shared_levels=args.shared_levels)
         tune_from_folders(args, settings, lambda module, folder, rng: folder_pairs(folder, settings, rng), tune_encoder,
                           "encoder_tuning")
 

@@ -2,26 +2,29 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 from test_tune_correlation import assert_the_command_writes_a_checkpoint_that_exports, model, pair_folder
 
 from patternshop_nn.onnx_export import load_module
 from patternshop_nn.tune_encoder import EncoderSettings, folder_pairs, main, tune_encoder
+from synthesis.errors import PatternshopError
 
 
-def test_the_own_encoder_and_correlation_decoder_learn_and_l_stays_bit_for_bit(tmp_path):
+@pytest.mark.parametrize("shared_levels", [0, 2])
+def test_the_own_encoder_and_correlation_decoder_learn_and_l_stays_bit_for_bit(tmp_path, shared_levels):
     module, original = model(), model()
-    settings = EncoderSettings(steps=60, batch_size=4, lr=1e-2, val_fraction=0.25)
+    settings = EncoderSettings(steps=60, batch_size=4, lr=1e-2, val_fraction=0.25, shared_levels=shared_levels)
     rng = torch.Generator().manual_seed(0)
     folders = [folder_pairs(pair_folder(tmp_path / name, seed=k), settings, rng) for k, name in enumerate(("one", "two"))]
     report = tune_encoder(module, folders, settings)
     for name, before in report["held_out_ab_error_before"].items():
-        assert report["held_out_ab_error"][name] < 0.3 * before
+        assert report["held_out_ab_error"][name] < (0.3 if shared_levels == 0 else 0.7) * before  # fewer layers learn
     state, start = module.state_dict(), original.state_dict()
     changed = {k for k in state if k not in start or not torch.equal(state[k], start[k])}
     assert changed and all(k.startswith(("generator.correlation_encoder.", "generator.correlation.")) for k in changed)
     assert not any("running_" in k and k in start for k in changed)  # batch-norm statistics as they were
-    assert module.hparams["correlation_encoder"]
+    assert module.hparams["correlation_encoder"] and module.hparams["correlation_shared_levels"] == shared_levels
     x = folders[0].raster[:2].float()
     with torch.no_grad():
         (lab, scale), (want_lab, want_scale) = module.generator.forward_with_scale(x), original.generator.eval().forward_with_scale(x)
@@ -33,3 +36,17 @@ def test_the_own_encoder_and_correlation_decoder_learn_and_l_stays_bit_for_bit(t
 def test_the_command_writes_a_checkpoint_that_exports_and_reloads_with_its_encoder(tmp_path, capsys):
     assert_the_command_writes_a_checkpoint_that_exports(main, "encoder_tuning", "held-out |a, b - target|", tmp_path, capsys)
     assert load_module(tmp_path / "tuned.ckpt").generator.correlation_encoder is not None
+
+
+def test_folder_weights_decide_which_folder_trains_and_are_checked(tmp_path):
+    settings = EncoderSettings(steps=20, batch_size=2, lr=1e-2, val_fraction=0.25)
+    rng = torch.Generator().manual_seed(0)
+    folders = [folder_pairs(pair_folder(tmp_path / name, seed=k), settings, rng) for k, name in enumerate(("one", "two"))]
+    only_two = EncoderSettings(**{**settings.__dict__, "folder_weights": (0.0, 1.0)})
+    report = tune_encoder(model(), folders, only_two)
+    one, two = (str(tmp_path / name) for name in ("one", "two"))
+    gain = {name: report["held_out_ab_error_before"][name] - report["held_out_ab_error"][name] for name in (one, two)}
+    assert gain[two] > 0 and gain[two] > gain[one]  # a weight of 0 never draws the folder
+    for bad in ((1.0,), (1.0, -1.0), (0.0, 0.0)):
+        with pytest.raises(PatternshopError, match="folder-weights"):
+            tune_encoder(model(), folders, EncoderSettings(**{**settings.__dict__, "folder_weights": bad}))
