@@ -16,9 +16,11 @@ proportion to ``--folder-weights``, each pair under a fresh random symmetry of t
 0.5, 0.999), cosine decay to 0. ``val_fraction`` of each folder's pairs is held out; the checkpoint records per
 folder the held-out a, b error before and after, in ab units (0..255).
 
-About 0.6 s a step of 8 256-px pairs on one thread; not resumable, rerun it. The encoder costs 3 % of a 704-px pass
-in torch (14 of 469 ms) but 6-17 % in ONNX Runtime (a 20,000-point ``infer`` pass 0.121 -> 0.129-0.142 s,
-``bench/bench_infer.py``, one thread): ``convert`` on two workers 9.94 -> 9.43 files/s beside the shipped model.
+About 0.6-0.7 s a step of 8 256-px pairs on one thread; not resumable, rerun it. The encoder costs 3 % of a 704-px
+pass in torch (14 of 469 ms) but about 8 % in ONNX Runtime (a 20,000-point pass 0.119 -> 0.129 s,
+``bench/bench_infer.py``, one thread): ``convert`` on two workers 9.06 -> 8.51 files/s beside the shipped model
+(trial v21's encF). Sharing the first two levels (trial v21's encG) cut that but lost two stationary rows
+(``docs/network.md``).
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ if TYPE_CHECKING:  # importing the module pulls in Lightning
 
 @dataclass(frozen=True)
 class EncoderSettings:
-    """The stage's training (defaults: trial v20's encC, from a decoder-tuned model; encB's lr 1e-4 from v18 lost the
+    """The stage's training (defaults: trial v20's encC and trial v21's encF; encB's lr 1e-4 from v18 lost the
     lattices, ``docs/network.md``)."""
 
     steps: int = 1200
