@@ -77,7 +77,8 @@ class Pix2PixModule(L.LightningModule):
                  blurred_l1_weight: float = 0.0, blurred_l1_sigma_px: float = 4.0, ssim_weight: float = 0.0,
                  ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1, ssim_max_b: float | None = None,
                  full_res_channels: int = 0, full_res_lr: float = 1e-3, full_res_stride: int = 1,
-                 correlation_encoder: bool = False, correlation_shared_levels: int = 0) -> None:
+                 correlation_encoder: bool = False, correlation_shared_levels: int = 0,
+                 correlation_stride: int = 1) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -86,7 +87,7 @@ class Pix2PixModule(L.LightningModule):
         # upsample's default, "transposed", rebuilds checkpoints whose hparams predate the option;
         # conf/model/pix2pix.yaml (and the shipped model) use resize-convolution ("nearest").
         self.generator = DualBranchUNet(1, levels, base_channels, max_channels, dropout, upsample, l_scale, full_res_channels,
-                                        full_res_stride, correlation_encoder, correlation_shared_levels)
+                                        full_res_stride, correlation_encoder, correlation_shared_levels, correlation_stride)
         self.discriminator = PatchDiscriminator(4, disc_channels, disc_layers)
         init_weights(self.generator)
         if full_res_channels > 0:

@@ -19,7 +19,9 @@ connections from the shared encoder; their outputs are concatenated and passed
 through a sigmoid. Widths double from ``base_channels`` per level up to
 ``max_channels``. With ``correlation_encoder=True`` the correlation decoder reads
 an encoder of its own (:class:`Encoder`, the same widths) instead, so its a, b
-can learn without moving L (``python -m patternshop_nn.tune_encoder``).
+can learn without moving L (``python -m patternshop_nn.tune_encoder``). With
+``correlation_stride`` > 1 the correlation decoder stops at that fraction of the
+raster's side and up-samples its a, b bilinearly (a cheaper pass; a, b are smooth).
 
 Up-sampling (``upsample``):
 
@@ -161,27 +163,45 @@ class Encoder(nn.Module):
 
 
 class Decoder(nn.Module):
-    """One U-Net decoder branch over the encoder's features (deepest first) -> (B, out_channels, S, S) logits."""
+    """One U-Net decoder branch over the encoder's features (deepest first) -> (B, out_channels, S, S) logits.
 
-    def __init__(self, widths: list[int], out_channels: int, dropout: float, upsample: str = "transposed") -> None:
+    ``stride`` = 2**t > 1: the branch stops t levels early, at S / stride, where its head (ReLU and a 3x3
+    convolution) reads the last up level with that level's skip; the logits are up-sampled bilinearly to S. A cheap
+    branch for outputs smooth at that scale (a, b: ``DualBranchUNet.coarse_correlation_decoder``).
+    """
+
+    def __init__(self, widths: list[int], out_channels: int, dropout: float, upsample: str = "transposed",
+                 stride: int = 1) -> None:
         super().__init__()
         # widths[k] = channels of encoder level k (k = 0 is the first, at S/2).
         levels = len(widths)
+        steps = stride.bit_length() - 1  # t
+        if stride < 1 or stride != 2**steps or steps > levels - 1:
+            raise ValueError(f"stride must be a power of 2 up to {2 ** (levels - 1)}, got {stride}")
+        self.stride = stride
+        self.skip_level = max(0, steps - 1)  # the level whose skip the head reads
         ups = [_up(widths[-1], widths[-2], dropout, upsample)]
-        for k in range(levels - 2, 0, -1):  # input: previous up output concatenated with the skip of level k
+        for k in range(levels - 2, self.skip_level, -1):  # input: previous up output concatenated with the skip of level k
             ups.append(_up(2 * widths[k], widths[k - 1], dropout if k >= levels - 3 else 0.0, upsample))
         self.ups = nn.ModuleList(ups)
-        self.head = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], out_channels, upsample, bias=True))
+        if stride == 1:
+            self.head = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], out_channels, upsample, bias=True))
+        else:
+            self.head = nn.Sequential(nn.ReLU(), nn.Conv2d(2 * widths[self.skip_level], out_channels, 3, 1, 1))
 
     def last_features(self, features: list[torch.Tensor]) -> torch.Tensor:
-        """(B, 2 widths[0], S/2, S/2): what the head reads (the last up level's output and the first skip)."""
+        """(B, 2 widths[l], S/2^(l+1), S/2^(l+1)): what the head reads (the last up level's output and the skip of
+        level l, :attr:`skip_level`; l = 0 for ``stride`` 1 and 2)."""
         x = self.ups[0](features[-1])
-        for up, skip in zip(self.ups[1:], reversed(features[:-1][1:]), strict=True):
+        for up, skip in zip(self.ups[1:], reversed(features[self.skip_level + 1 : -1]), strict=True):
             x = up(torch.cat([x, skip], 1))
-        return torch.cat([x, features[0]], 1)
+        return torch.cat([x, features[self.skip_level]], 1)
 
     def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
-        return self.head(self.last_features(features))
+        logits = self.head(self.last_features(features))
+        if self.stride == 1:
+            return logits
+        return F.interpolate(logits, scale_factor=self.stride, mode="bilinear", align_corners=False)
 
 
 class DualBranchUNet(nn.Module):
@@ -209,12 +229,14 @@ class DualBranchUNet(nn.Module):
             features hide while L and its scale stay as they are (:meth:`own_correlation_encoder` starts it as a copy).
         correlation_shared_levels: with ``correlation_encoder``, the first this many levels stay the shared encoder's
             (the own one starts from their features): the own encoder costs less (0: all its own).
+        correlation_stride: the correlation decoder stops at S / this (a power of 2) and up-samples its logits
+            bilinearly (:class:`Decoder`); 1: it runs to S as the density decoder does.
     """
 
     def __init__(self, in_channels: int = 1, levels: int = 6, base_channels: int = 16, max_channels: int = 128,
                  dropout: float = 0.0, upsample: str = "transposed", l_scale: bool = False,
                  full_res_channels: int = 0, full_res_stride: int = 1, correlation_encoder: bool = False,
-                 correlation_shared_levels: int = 0) -> None:
+                 correlation_shared_levels: int = 0, correlation_stride: int = 1) -> None:
         super().__init__()
         if levels < 2:
             raise ValueError(f"levels must be at least 2, got {levels}")
@@ -228,8 +250,9 @@ class DualBranchUNet(nn.Module):
         self.l_scale = l_scale
         self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1)
         self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < levels - 1) for k in range(1, levels))
+        self.widths = widths
         self.density = Decoder(widths, 1, dropout, upsample)
-        self.correlation = Decoder(widths, 2, dropout, upsample)
+        self.correlation = Decoder(widths, 2, dropout, upsample, correlation_stride)
         self.correlation_encoder = Encoder(in_channels, widths, correlation_shared_levels) if correlation_encoder else None
         if l_scale:
             self.scale = nn.Sequential(nn.ReLU(), *_double(2 * widths[0], 1, upsample, bias=True))
@@ -285,6 +308,21 @@ class DualBranchUNet(nn.Module):
                 if not isinstance(own, nn.Identity):  # a shared level's place
                     own.load_state_dict(shared.state_dict())
             self.correlation_encoder.train(self.training)  # a new module trains; it takes the generator's mode
+
+    def coarse_correlation_decoder(self, stride: int) -> None:
+        """Stop the correlation decoder at S / ``stride``: its levels down to there are kept (weights and all), its
+        head is new (ReLU and a 3x3 convolution, initialised as :func:`init_weights` does, bias 0) and its logits are
+        up-sampled bilinearly. L is unchanged; a, b start near 0 and must be trained (``tune_encoder
+        --correlation-stride``). A decoder already at ``stride`` is kept."""
+        old = self.correlation
+        if old.stride == stride:
+            return
+        if old.stride != 1:
+            raise ValueError(f"the correlation decoder already stops at S/{old.stride}; it can be coarsened only from S")
+        new = Decoder(self.widths, 2, 0.0, self.upsample, stride)
+        new.ups = old.ups[: len(new.ups)]  # the trained levels, their dropout included
+        init_weights(new.head)
+        self.correlation = new.train(self.training)
 
     def correlation_features(self, raster: torch.Tensor, features: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
         """The features the correlation decoder reads: its own encoder's, else the shared one's (first level first);

@@ -126,11 +126,14 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
     encoders = [(w, b) for w, b in convs if not w.startswith(("density.", "correlation.", "scale.", *DualBranchUNet.FULL_RES_MODULES))]
     shared_levels = 2 * levels - len(encoders) if own_encoder else 0  # the own encoder's levels: those past the shared ones
     new: dict[str, torch.Tensor] = {}
+    ups = {branch: sum(f"{branch}.ups.{k}.1.weight" in arrays for k in range(levels)) for branch in ("density", "correlation")}
+    coarse = arrays.get("correlation.head.1.weight", np.zeros((0, 0, 2, 2))).shape[-1] == 3  # a plain 3x3 head: it stops early
+    correlation_stride = 2 ** (levels - ups["correlation"]) if coarse else 1
     try:
         if len(encoders) not in (range(levels + 1, 2 * levels + 1) if own_encoder else (levels,)):
             raise KeyError(f"{len(encoders)} encoder convolutions for {levels} levels")
         generator = DualBranchUNet(1, levels, base_channels, max_channels, 0.0, "nearest", l_scale, int(path_width),
-                                   path_stride, own_encoder, shared_levels).eval()
+                                   path_stride, own_encoder, shared_levels, correlation_stride).eval()
         init_weights(generator)
         state = generator.state_dict()
         eps = generator.downs[0][2].eps
@@ -138,10 +141,14 @@ def generator_from_onnx(path: str | Path, levels: int = 6, base_channels: int = 
         if own_encoder:
             new.update(_encoder_state(encoders[levels:], arrays, state, "correlation_encoder.", eps, shared_levels))
         for branch in ("density", "correlation"):
-            for k in range(levels - 1):
+            for k in range(ups[branch]):
                 for field in ("weight", "bias", "running_mean", "running_var"):
                     new[f"{branch}.ups.{k}.3.{field}"] = torch.from_numpy(arrays[f"{branch}.ups.{k}.3.{field}"].copy())
                 new[f"{branch}.ups.{k}.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.ups.{k}.1.weight"]).astype(np.float32))
+            if branch == "correlation" and coarse:  # a plain convolution, copied
+                new.update({f"correlation.head.1.{field}": torch.from_numpy(arrays[f"correlation.head.1.{field}"].copy())
+                            for field in ("weight", "bias")})
+                continue
             new[f"{branch}.head.2.weight"] = torch.from_numpy(unfuse_kernel(arrays[f"{branch}.head.1.weight"]).astype(np.float32))
             new[f"{branch}.head.2.bias"] = torch.from_numpy(arrays[f"{branch}.head.1.bias"][::4].copy())
         new.update({name: torch.from_numpy(arrays[name].copy()) for name in state
@@ -197,11 +204,12 @@ def checkpoint_from_onnx(onnx_path: str | Path, out_path: str | Path, rasters: t
     hp = module.hparams
     generator = generator_from_onnx(onnx_path, hp.levels, hp.base_channels, hp.max_channels, module.generator.l_scale)
     own_encoder = generator.correlation_encoder is not None
-    if generator.full_res_channels or own_encoder:  # the module (and its recorded hyper-parameters) take the exported model's layers
+    if generator.full_res_channels or own_encoder or generator.correlation.stride > 1:  # the module (and its hparams) take the export's layers
         shared_levels = generator.correlation_encoder.shared_levels if own_encoder else 0
         module = Pix2PixModule(**{**model_kwargs, "upsample": "nearest", "full_res_channels": generator.full_res_channels,
                                   "full_res_stride": generator.full_res_stride, "correlation_encoder": own_encoder,
-                                  "correlation_shared_levels": shared_levels})
+                                  "correlation_shared_levels": shared_levels,
+                                  "correlation_stride": generator.correlation.stride})
     if rasters is not None:
         calibrate_folded_norms(generator, rasters)
     module.generator.load_state_dict(generator.state_dict())

@@ -9,7 +9,10 @@ the shared encoder moves L (trial v20, ``docs/network.md``). This tool gives the
 (:meth:`~patternshop_nn.networks.DualBranchUNet.own_correlation_encoder`: a copy of the shared one, so training starts
 at the model's function; a model that has one keeps it) and trains that encoder and ``generator.correlation``
 together. With ``--shared-levels K`` the own encoder starts from the shared encoder's first K levels (their
-features are computed once; they and the skips they feed stay the shared ones), so it costs less. The shared encoder, the density decoder, the full-resolution path and the ``l_scale`` head are not on
+features are computed once; they and the skips they feed stay the shared ones), so it costs less. With
+``--correlation-stride N`` the correlation decoder stops at 1/N of the raster's side
+(:meth:`~patternshop_nn.networks.DualBranchUNet.coarse_correlation_decoder`: its levels down to there kept, a new head
+trained at ``--head-lr``, a, b up-sampled bilinearly). The shared encoder, the density decoder, the full-resolution path and the ``l_scale`` head are not on
 their path, so L and its Laplace scale are the model's bit for bit. The loss is the L1 of a, b (z in [0, 1])
 against the pairs' targets over all pixels, as in training; each batch comes from one folder, drawn uniformly or in
 proportion to ``--folder-weights``, each pair under a fresh random symmetry of the square; batch-norm statistics stay as trained (eval mode); Adam (betas
@@ -55,6 +58,8 @@ class EncoderSettings:
     seed: int = 0
     folder_weights: tuple[float, ...] | None = None  # one per folder, batches drawn in proportion; None: uniform
     shared_levels: int = 0  # levels the new encoder leaves to the shared one (cheaper); a model with its own keeps it
+    correlation_stride: int = 1  # > 1: the correlation decoder stops at S / this, with a new head (cheaper)
+    head_lr: float = 1e-3  # Adam's learning rate of that new head (it starts from scratch)
 
 
 @dataclass
@@ -120,13 +125,23 @@ def tune_encoder(module: Pix2PixModule, folders: list[FolderPairs], settings: En
     module.hparams["correlation_encoder"] = True  # the checkpoint rebuilds the encoder
     module.hparams["correlation_shared_levels"] = generator.correlation_encoder.shared_levels
     before = {data.name: round(held_out_ab_error(generator, data), 4) for data in folders}
+    new_head = generator.correlation.stride != settings.correlation_stride
+    try:
+        generator.coarse_correlation_decoder(settings.correlation_stride)
+    except ValueError as exc:
+        raise PatternshopError(f"--correlation-stride {settings.correlation_stride}: {exc}") from exc
+    module.hparams["correlation_stride"] = generator.correlation.stride
     trained = [*generator.correlation_encoder.parameters(), *generator.correlation.parameters()]  # all on the a, b path
     for parameter in generator.parameters():  # the shared levels' features need no gradient
         parameter.requires_grad_(False)
     for parameter in trained:
         parameter.requires_grad_(True)
     rng = torch.Generator().manual_seed(settings.seed)
-    optimizer = torch.optim.Adam(trained, lr=settings.lr, betas=(0.5, 0.999))
+    head = {id(p) for p in generator.correlation.head.parameters()} if new_head else set()
+    groups = [{"params": [p for p in trained if id(p) not in head]}]
+    if head:  # the new head starts from scratch: its own, larger rate
+        groups.append({"params": list(generator.correlation.head.parameters()), "lr": settings.head_lr})
+    optimizer = torch.optim.Adam(groups, lr=settings.lr, betas=(0.5, 0.999))
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, settings.steps)
     for _ in tqdm(range(settings.steps), desc="tune a, b encoder", unit="step", disable=not progress):
         drawn = torch.randint(len(folders), (1,), generator=rng) if weights is None else \
@@ -153,6 +168,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--folder-weights", type=float, nargs="+", metavar="W",
                         help="one weight per --pairs folder, in order: batches come from a folder in proportion to its "
                              "weight (default: every folder equally)")
+    parser.add_argument("--correlation-stride", type=int, default=defaults.correlation_stride, metavar="N",
+                        help="stop the correlation decoder at 1/N of the raster's side (a power of 2) with a new head, "
+                             "its a, b up-sampled bilinearly: a cheaper pass (default 1: full resolution)")
+    parser.add_argument("--head-lr", type=float, default=defaults.head_lr,
+                        help=f"learning rate of that new head (default {defaults.head_lr:g})")
     parser.add_argument("--shared-levels", type=int, default=defaults.shared_levels,
                         help="encoder levels the correlation decoder keeps sharing with the density decoder; its own "
                              "encoder starts after them and costs less (default 0: all its own)")
@@ -160,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     def run(args: argparse.Namespace) -> None:
         weights = tuple(args.folder_weights) if args.folder_weights else None
         settings = EncoderSettings(args.steps, args.batch_size, args.lr, args.shards_per_folder, seed=args.seed,
-                                   folder_weights=weights, shared_levels=args.shared_levels)
+                                   folder_weights=weights, shared_levels=args.shared_levels,
+                                   correlation_stride=args.correlation_stride, head_lr=args.head_lr)
         tune_from_folders(args, settings, lambda module, folder, rng: folder_pairs(folder, settings, rng), tune_encoder,
                           "encoder_tuning")
 

@@ -83,3 +83,32 @@ def test_an_export_with_its_own_encoder_is_rebuilt_and_exports_the_same_function
     again = onnxruntime.InferenceSession(str(tmp_path / "again.onnx"), providers=["CPUExecutionProvider"])
     for a, b in zip(session.run(None, {"raster": x.numpy()}), again.run(None, {"raster": x.numpy()}), strict=True):
         assert np.abs(a - b).max() < 1e-5
+
+
+def test_a_coarse_correlation_decoder_keeps_l_exports_and_is_rebuilt(tmp_path):
+    module = tiny()
+    generator = owning(module)
+    x = rasters()
+    with torch.no_grad():
+        lab, scale = generator.forward_with_scale(x)
+        generator.coarse_correlation_decoder(8)
+        for p in generator.correlation.head.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+        coarse, coarse_scale = generator.forward_with_scale(x)
+    assert coarse.shape == lab.shape and generator.correlation.stride == 8 and len(generator.correlation.ups) == 3
+    torch.testing.assert_close(coarse[:, :1], lab[:, :1], rtol=0, atol=0)  # L and its scale untouched
+    torch.testing.assert_close(coarse_scale, scale, rtol=0, atol=0)
+    with torch.no_grad():  # the head reads S/8 (its skip level, 2)
+        assert generator.correlation.last_features(generator.correlation_features(x)).shape[-1] == x.shape[-1] // 8
+    with pytest.raises(ValueError, match="coarsened only from S"):
+        generator.coarse_correlation_decoder(4)
+    export_onnx(generator, tmp_path / "coarse.onnx", {"points_per_ink": 8000})
+    session = onnxruntime.InferenceSession(str(tmp_path / "coarse.onnx"), providers=["CPUExecutionProvider"])
+    assert np.abs(session.run(None, {"raster": x.numpy()})[0] - coarse.numpy()).max() < 1e-4
+    rebuilt = generator_from_onnx(tmp_path / "coarse.onnx", base_channels=4, max_channels=8, l_scale=True)
+    assert rebuilt.correlation.stride == 8
+    with torch.no_grad():
+        torch.testing.assert_close(rebuilt.forward_with_scale(x)[0], coarse, atol=1e-4, rtol=0)
+    checkpoint = checkpoint_from_onnx(tmp_path / "coarse.onnx", tmp_path / "rebuilt.ckpt", rasters=x, base_channels=4,
+                                      max_channels=8, disc_channels=4, l_scale=True)
+    assert torch.load(checkpoint, weights_only=False)["hyper_parameters"]["correlation_stride"] == 8
