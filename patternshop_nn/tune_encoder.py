@@ -22,8 +22,9 @@ folder the held-out a, b error before and after, in ab units (0..255).
 About 0.6-0.7 s a step of 8 256-px pairs on one thread; not resumable, rerun it. The encoder costs 3 % of a 704-px
 pass in torch (14 of 469 ms) but about 8 % in ONNX Runtime (a 20,000-point pass 0.119 -> 0.129 s,
 ``bench/bench_infer.py``, one thread): ``convert`` on two workers 9.06 -> 8.51 files/s beside the shipped model
-(trial v21's encF). Sharing the first two levels (trial v21's encG) cut that but lost two stationary rows
-(``docs/network.md``).
+(trial v21's encF). Sharing the first two levels (trial v21's encG) cut that but lost two stationary rows; the
+correlation decoder at S/8 (``--correlation-stride 8``, encI, 6,000 steps at 5.5 a second) made the pass 8.5 %
+cheaper than the shipped model's but lost the hexagonal lattice's rotation spread (``docs/network.md``).
 """
 
 from __future__ import annotations
