@@ -40,7 +40,7 @@ def test_the_command_writes_a_checkpoint_that_exports_and_reloads_with_its_encod
     assert load_module(tmp_path / "tuned.ckpt").generator.correlation_encoder is not None
 
 
-def test_folder_weights_decide_which_folder_trains_and_are_checked(tmp_path):
+def test_folder_weights_decide_which_folder_trains_and_bad_settings_are_refused(tmp_path):
     settings = EncoderSettings(steps=20, batch_size=2, lr=1e-2, val_fraction=0.25)
     rng = torch.Generator().manual_seed(0)
     folders = [folder_pairs(pair_folder(tmp_path / name, seed=k), settings, rng) for k, name in enumerate(("one", "two"))]
@@ -52,3 +52,6 @@ def test_folder_weights_decide_which_folder_trains_and_are_checked(tmp_path):
     for bad in ((1.0,), (1.0, -1.0), (0.0, 0.0)):
         with pytest.raises(PatternshopError, match="folder-weights"):
             tune_encoder(model(), folders, EncoderSettings(**{**settings.__dict__, "folder_weights": bad}))
+    for bad in (3, 0, 64):  # not a power of 2; beyond the deepest level
+        with pytest.raises(PatternshopError, match="correlation-stride"):
+            tune_encoder(model(), folders, EncoderSettings(**{**settings.__dict__, "correlation_stride": bad}))
