@@ -250,7 +250,7 @@ class DualBranchUNet(nn.Module):
         self.l_scale = l_scale
         self.first = nn.Conv2d(in_channels, widths[0], 4, 2, 1)
         self.downs = nn.ModuleList(_down(widths[k - 1], widths[k], norm=k < levels - 1) for k in range(1, levels))
-        self.widths = widths
+        self.widths = widths  # channels per encoder level, first first
         self.density = Decoder(widths, 1, dropout, upsample)
         self.correlation = Decoder(widths, 2, dropout, upsample, correlation_stride)
         self.correlation_encoder = Encoder(in_channels, widths, correlation_shared_levels) if correlation_encoder else None
@@ -300,8 +300,7 @@ class DualBranchUNet(nn.Module):
         """Give the correlation decoder an encoder of its own, a copy of the shared one from level ``shared_levels``
         on (the levels before stay shared); the function is unchanged. A generator that has one keeps it."""
         if self.correlation_encoder is None:
-            widths = [self.first.out_channels, *(d[1].out_channels for d in self.downs)]
-            self.correlation_encoder = Encoder(self.first.in_channels, widths, shared_levels)
+            self.correlation_encoder = Encoder(self.first.in_channels, self.widths, shared_levels)
             if self.correlation_encoder.first is not None:
                 self.correlation_encoder.first.load_state_dict(self.first.state_dict())
             for own, shared in zip(self.correlation_encoder.downs, self.downs, strict=True):
