@@ -265,7 +265,7 @@ def _convert_chunk(settings: _InferenceSettings, chunk: list[_Job], model: OnnxM
                 inference = infer_map(points, model, scale=scale, symmetries=settings.symmetries, denoise=settings.denoise,
                                       config=settings.config)
             notes = tuple(f"{job.source}: {warning.message}" for warning in caught)
-            if scale.points_per_ink != POINTS_PER_INK:
+            if scale.automatic and scale.points_per_ink != POINTS_PER_INK:  # a guess; not the header's or the user's
                 notes += (f"{job.source}: read at {scale.describe()}",)
             with local_target(job.output) as output:
                 write_tiff(inference.lab_map, output, settings.bits)
