@@ -155,8 +155,9 @@ def test_scale_choice_reads_the_config() -> None:
     assert 50_000 < median.points_per_ink < chosen.points_per_ink and "50th-percentile" in median.describe()
 
 
-def test_smoothing_with_fft_gaussians_is_the_plain_one(monkeypatch: pytest.MonkeyPatch) -> None:
-    """smooth_by_uncertainty with the FFT Gaussians against the same ladder with scipy's everywhere."""
+def test_smoothing_with_matrix_gaussians_is_the_plain_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """smooth_by_uncertainty with export.gaussian's float32 products against the same ladder with scipy's filter
+    everywhere: within float32 rounding (the widths fade continuously with the change, so they move as little)."""
     from scipy.ndimage import gaussian_filter
 
     import export.uncertainty as uncertainty
@@ -168,6 +169,6 @@ def test_smoothing_with_fft_gaussians_is_the_plain_one(monkeypatch: pytest.Monke
     monkeypatch.setattr(uncertainty, "gaussian", lambda image, sigma, truncate=4.0: gaussian_filter(image, sigma, truncate=truncate))
     plain = smooth_by_uncertainty(density, scale, CONFIG)
     assert max(smoothing_levels(density.shape, CONFIG)) >= 16  # wide levels and windows included
-    np.testing.assert_allclose(fast[0], plain[0], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(fast[1], plain[1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast[0], plain[0], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(fast[1], plain[1], rtol=0, atol=1e-4)
     assert fast[1].max() > 8  # some pixels climb the wide levels: the comparison is not vacuous
