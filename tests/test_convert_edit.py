@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import fresh_python_lines, run_cli
 from PIL import Image
 
 from export.convert import FAILED, SKIPPED, WRITTEN, convert_points, map_files, point_files
@@ -70,6 +70,13 @@ def test_convert_continues_past_bad_files(points_dir, tiny_onnx, tmp_path, capsy
     assert status == 1 and "wrote 0 of 5 files" in err and "skipped 3" in err
     status, err = run([*argv, "--overwrite", "--workers", "1"], capsys)
     assert status == 1 and "wrote 3 of 5 files" in err
+
+
+def test_a_convert_worker_imports_no_progress_bar() -> None:
+    """A convert worker imports export.convert and export.runtime, not tqdm (with importlib.metadata, 40 ms of each
+    worker's start): only the calling process draws the bar."""
+    code = "import sys, export.convert, export.runtime\nprint(sorted({'tqdm', 'importlib.metadata'} & set(sys.modules)))"
+    assert fresh_python_lines(code)[-1] == "[]"
 
 
 def test_convert_points_results_in_order(points_dir, tiny_onnx, tmp_path):
