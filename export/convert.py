@@ -13,17 +13,19 @@ caller to report. Outputs are written atomically, named after the input
   averages more) and writes a CIELAB TIFF. Files go to the workers one or a few
   at a time (:func:`_chunks`), so that they end together. For a 20k-point file
   at 41,912 points per ink (a 704 x 704 px raster: 586 px of domain and the
-  mirrored border) the shipped model (v18, ``l_scale`` and a full-resolution
+  mirrored border) v18 (``l_scale`` and a full-resolution
   path on 4 x 4 blocks) reads the file once: about 0.15 s of one core, of which
   the network 0.10 s, the smoothing 0.011 s (float32 matrix Gaussians,
   :mod:`export.gaussian`; 0.023 s through the FFT), writing 0.007 s, reading
   0.005 s, the degeneracy check 0.005 s, the water-filling 0.001 s
   (``bench/bench_infer.py``, section 3, 2026-11-28 01:36 UTC, an idle machine);
-  a model without ``l_scale`` the same, less the smoothing. Each worker starts
-  in about 0.3 s of one core (imports without scipy or tqdm, the ONNX session);
-  on this project's 2-core machine two workers convert 10.9-11.2 files a second
-  with v18 in that run; the machine's speed moves by tens of percent between
-  hours (8-10 files/s in other runs; MODEL_CARD.md, "Cost").
+  the shipped v19 (its correlation decoder with an encoder of its own, stopped
+  at S/4) 0.154 s, the network 0.108 s; a model without ``l_scale`` the same,
+  less the smoothing. Each worker starts in about 0.3 s of one core (imports
+  without scipy or tqdm, the ONNX session); on this project's 2-core machine two
+  workers convert 10.9-11.2 files a second with v18 and 10.7-11.3 with v19 in
+  that run; the machine's speed moves by tens of percent between hours (8-10
+  files/s in other runs; MODEL_CARD.md, "Cost").
 * :func:`resynthesize_maps`: worker processes read maps and synthesise points
   (:func:`synthesis.synthesize.synthesize`), one map per task.
 

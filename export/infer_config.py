@@ -37,7 +37,7 @@ class InferConfig:
         convert_symmetries: the same for ``convert``, whose target is 10 files/s on two workers: one pass per file.
         smoothing_tolerance: k of :func:`export.uncertainty.smooth_by_uncertainty`: a pixel takes a Gaussian
             smoothing while the change it makes stays within k times the predicted Laplace scale of its density.
-            Chosen for v15 (re-measured for the shipped v18, its path distilled: the same figures) on the 12 development stipplings (``bench/bench_uncertainty.py
+            Chosen for v15 (re-measured for v18, its path distilled: the same figures; v19 keeps v18's L) on the 12 development stipplings (``bench/bench_uncertainty.py
             --tolerances 0.15,0.25,0.35,0.5 --cases``: the four development pictures of ``patternshop_nn.ood`` by
             its three stipplers, seed 1000; 2 symmetries): mean SSIM 0.628 unsmoothed, 0.647, 0.651, 0.648, 0.640 at
             k 0.15, 0.25, 0.35, 0.5; MAE 4.66, 4.59, 4.59, 4.64, 4.78; better than the oracle KDE in SSIM and MAE in
