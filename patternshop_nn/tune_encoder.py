@@ -24,7 +24,10 @@ pass in torch (14 of 469 ms) but about 8 % in ONNX Runtime (a 20,000-point pass 
 ``bench/bench_infer.py``, one thread): ``convert`` on two workers 9.06 -> 8.51 files/s beside the shipped model
 (trial v21's encF). Sharing the first two levels (trial v21's encG) cut that but lost two stationary rows; the
 correlation decoder at S/8 (``--correlation-stride 8``, encI, 6,000 steps at 5.5 a second) made the pass 8.5 %
-cheaper than the shipped model's but lost the hexagonal lattice's rotation spread (``docs/network.md``).
+cheaper than the shipped model's but lost the hexagonal lattice's rotation spread (``docs/network.md``). At S/4 with
+the lattice folders weighted 2 it trains at 4-4.5 steps a second: 10,000 steps, then 3,000 more with ``exact-v13``
+weighted 4, made model v19 (trial v22: all five stationary processes within 10 ab of ``analyze``; its pass about 6 %
+dearer than v18's).
 """
 
 from __future__ import annotations
