@@ -162,6 +162,14 @@ class Encoder(nn.Module):
         return features
 
 
+def decoder_steps(stride: int, levels: int) -> int:
+    """t for a decoder ``stride`` = 2**t of a U-Net of ``levels`` levels (0 <= t <= levels - 1); ValueError otherwise."""
+    steps = stride.bit_length() - 1
+    if stride < 1 or stride != 2**steps or steps > levels - 1:
+        raise ValueError(f"stride must be a power of 2 up to {2 ** (levels - 1)}, got {stride}")
+    return steps
+
+
 class Decoder(nn.Module):
     """One U-Net decoder branch over the encoder's features (deepest first) -> (B, out_channels, S, S) logits.
 
@@ -175,9 +183,7 @@ class Decoder(nn.Module):
         super().__init__()
         # widths[k] = channels of encoder level k (k = 0 is the first, at S/2).
         levels = len(widths)
-        steps = stride.bit_length() - 1  # t
-        if stride < 1 or stride != 2**steps or steps > levels - 1:
-            raise ValueError(f"stride must be a power of 2 up to {2 ** (levels - 1)}, got {stride}")
+        steps = decoder_steps(stride, levels)  # t
         self.stride = stride
         self.skip_level = max(0, steps - 1)  # the level whose skip the head reads
         ups = [_up(widths[-1], widths[-2], dropout, upsample)]

@@ -42,6 +42,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from patternshop_nn.networks import decoder_steps
 from patternshop_nn.short_training import add_shards_option, add_training_options, training_parser, tune_from_folders
 from synthesis.errors import PatternshopError, run_module_cli
 
@@ -121,9 +122,10 @@ def tune_encoder(module: Pix2PixModule, folders: list[FolderPairs], settings: En
         raise PatternshopError(f"steps and batch_size must be >= 1 and a folder given, got {settings}, {len(folders)} folders")
     if not 0 <= settings.shared_levels < module.generator.levels:
         raise PatternshopError(f"--shared-levels must be in 0 .. {module.generator.levels - 1}, got {settings.shared_levels}")
-    stride, top = settings.correlation_stride, 2 ** (module.generator.levels - 1)
-    if stride < 1 or stride & (stride - 1) or stride > top:
-        raise PatternshopError(f"--correlation-stride must be a power of 2 up to {top}, got {stride}")
+    try:  # checked before any work; coarse_correlation_decoder below checks it again as it builds the decoder
+        decoder_steps(settings.correlation_stride, module.generator.levels)
+    except ValueError as exc:
+        raise PatternshopError(f"--correlation-stride: {exc}") from exc
     weights = settings.folder_weights
     if weights is not None and (len(weights) != len(folders) or min(weights) < 0 or sum(weights) <= 0):
         raise PatternshopError(f"--folder-weights needs one weight >= 0 per folder ({len(folders)}), not all 0; got {list(weights)}")
