@@ -11,6 +11,11 @@ Manual optimisation, one discriminator and one generator step per batch:
   the three channels as before). The weight multiplies the whole NLL, so its
   minimum stays at ``b = |y - mu|``; it sets how hard the shared encoder is
   pulled by L against a, b (``|y - mu| / b`` is about ``1 / b`` times L's L1);
+  that ``1 / b`` also weighs the mean's error least where the network is least
+  sure (textures, detail): ``l_mean_l1=True`` teaches the mean by L's plain L1
+  (weight 1, as without the head) and the scale by the NLL of the mean
+  detached (``l_nll_weight`` times it), so each pixel's error counts alike
+  (the "beta-NLL" observation of Seitzer et al. 2022, for a Laplace);
   the scale head's parameters learn at ``l_scale_lr`` (a new head on a
   fine-tuned network: at the network's rate it stays nearly flat for
   hundreds of steps); ``blurred_l1_weight`` > 0 adds that weight times the L1
@@ -78,7 +83,7 @@ class Pix2PixModule(L.LightningModule):
                  ssim_min_target_std: float = 0.0, ssim_pool_px: int = 1, ssim_max_b: float | None = None,
                  full_res_channels: int = 0, full_res_lr: float = 1e-3, full_res_stride: int = 1,
                  correlation_encoder: bool = False, correlation_shared_levels: int = 0,
-                 correlation_stride: int = 1) -> None:
+                 correlation_stride: int = 1, l_mean_l1: bool = False) -> None:
         super().__init__()
         if lr_policy not in LR_POLICIES:
             raise ValueError(f"unknown lr_policy {lr_policy!r}; choose one of {', '.join(LR_POLICIES)}")
@@ -113,9 +118,15 @@ class Pix2PixModule(L.LightningModule):
         if scale is None:
             loss, parts = l1, {"l1": l1}
         else:
-            nll = laplace_nll(target[:, :1], fake[:, :1], scale).mean()
             ab = (fake[:, 1:] - target[:, 1:]).abs().mean()
-            loss, parts = (self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0, {"l1": l1, "l_nll": nll}
+            if self.hparams.get("l_mean_l1", False):  # the mean from its own L1, the scale from the NLL of it detached
+                l_l1 = (fake[:, :1] - target[:, :1]).abs().mean()
+                nll = laplace_nll(target[:, :1], fake[:, :1].detach(), scale).mean()
+                loss = (l_l1 + self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0
+            else:
+                nll = laplace_nll(target[:, :1], fake[:, :1], scale).mean()
+                loss = (self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0
+            parts = {"l1": l1, "l_nll": nll}
         if self.hparams.blurred_l1_weight > 0:
             parts["l_blurred_l1"] = blurred_l1(fake[:, :1], target[:, :1], self.hparams.blurred_l1_sigma_px)
             loss = loss + self.hparams.blurred_l1_weight * parts["l_blurred_l1"]

@@ -68,6 +68,26 @@ def test_head_loss_trains_the_scale_towards_the_error():
     assert 0.5 * error < scale.mean() < 2.0 * error  # the mean scale came near the mean absolute error
 
 
+def test_with_l_mean_l1_the_mean_learns_from_its_l1_and_the_scale_from_the_nll():
+    torch.manual_seed(2)
+    target = torch.rand(2, 3, 16, 16)
+    fake = torch.rand(2, 3, 16, 16, requires_grad=True)
+    scale = (0.01 + 0.3 * torch.rand(2, 1, 16, 16)).requires_grad_(True)
+    gradients = {}
+    for detached in (False, True):
+        module = Pix2PixModule(base_channels=4, max_channels=8, disc_channels=4, l_scale=True, l_nll_weight=0.05,
+                               l_mean_l1=detached)
+        loss, parts = module.reconstruction_loss(fake, scale, target)
+        gradients[detached] = torch.autograd.grad(loss, (fake, scale))
+    error_sign = torch.sign(fake[:, :1] - target[:, :1]).detach()
+    pixels = error_sign.numel()
+    # the NLL's mean gradient is weighted by 1 / b; the L1's is the same for every pixel
+    torch.testing.assert_close(gradients[False][0][:, :1], 0.05 * error_sign / scale.detach() / pixels / 3.0)
+    torch.testing.assert_close(gradients[True][0][:, :1], error_sign / pixels / 3.0)
+    torch.testing.assert_close(gradients[True][0][:, 1:], gradients[False][0][:, 1:])  # a, b as before
+    torch.testing.assert_close(gradients[True][1], gradients[False][1])  # the scale learns from the same NLL
+
+
 def test_export_has_map_and_l_scale_outputs(tmp_path):
     torch.manual_seed(0)
     net = DualBranchUNet(base_channels=4, max_channels=8, upsample="nearest", l_scale=True)
