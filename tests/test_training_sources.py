@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from data_gen.makers import build_maker
-from data_gen.makers.textures import MIN_MEAN, TEXTURES, texture_picture
+from data_gen.makers.textures import DEFAULT_TEXTURES, MIN_MEAN, TEXTURES, leaf_radii, texture_picture
 from data_gen.pairs import PairSettings, generate
 from data_gen.provenance import compose_config
 from data_gen.shards import load_pairs, map_to_target, target_to_map
@@ -51,6 +51,15 @@ def test_textures_are_deterministic_and_in_range(kind):
     assert not np.array_equal(first, TEXTURES[kind](48, np.random.default_rng(6)))
     _, toned = texture_picture(48, np.random.default_rng(5), {kind: 1.0})
     assert toned.mean() >= MIN_MEAN - 1e-6 and 0.0 <= toned.min() and toned.max() <= 1.0
+
+
+def test_dead_leaves_are_opt_in_and_their_radii_follow_r_to_the_minus_3():
+    assert "dead_leaves" in TEXTURES and "dead_leaves" not in DEFAULT_TEXTURES  # earlier folders' commands unchanged
+    radii = leaf_radii(200_000, 2.0, 60.0, np.random.default_rng(0))
+    assert radii.min() >= 2.0 and radii.max() <= 60.0
+    for r in (4.0, 8.0, 20.0):  # P(R > r) = (r^-2 - b^-2) / (a^-2 - b^-2)
+        expected = (r**-2 - 60.0**-2) / (2.0**-2 - 60.0**-2)
+        assert abs(np.mean(radii > r) - expected) < 0.005
 
 
 def test_textures_dataset_is_deterministic():

@@ -17,6 +17,11 @@ texture           what it draws
                   light background
 ``line_art``      3-40 strokes (polylines, Bezier curves, circles, 1-5 px) on a light
                   background, some shapes filled
+``dead_leaves``   the dead leaves model: occluding disks of random grey, radii with density
+                  r^-3 from 2 px to 10-40 % of the map (scale invariant, as the edges of
+                  natural images), a third of them slightly blurred (as a photograph's focus);
+                  opt-in (not in :data:`DEFAULT_TEXTURES`, so the recorded commands of
+                  earlier folders make the same pairs)
 ================  ===========================================================================
 
 They are opt-in map sources: ``textures.share`` > 0 in the pair generation config
@@ -164,10 +169,43 @@ def line_art(size: int, rng: np.random.Generator) -> np.ndarray:
     return (np.asarray(image.resize((size, size), Image.Resampling.BOX), np.float32) / 255.0)
 
 
+LEAVES_COVERAGE = 4.0  # disks drawn: this many times the map's area over a disk's mean area (the last on top)
+
+
+def leaf_radii(count: int, low: float, high: float, rng: np.random.Generator) -> np.ndarray:
+    """(count,) radii in [low, high] drawn with density proportional to r^-3 (inverse CDF of uniform draws)."""
+    return (low**-2 - rng.random(count) * (low**-2 - high**-2)) ** -0.5
+
+
+def dead_leaves(size: int, rng: np.random.Generator) -> np.ndarray:
+    """The dead leaves model: disks of uniform random grey, each on top of the ones before, radii drawn with
+    density proportional to r^-3 between 2 px (about a point spacing of the
+    development and test stipplings' maps) and 10-40 % of ``size`` (inverse CDF), drawn at twice the size and
+    box-filtered; a third of the pictures then blurred by a Gaussian of 0.5-1.5 px."""
+    from scipy.ndimage import gaussian_filter
+
+    big = size * SUPERSAMPLE
+    low, high = 2.0, size * rng.uniform(0.1, 0.4)
+    mean_square = np.log(high / low) / (0.5 * (low**-2 - high**-2))  # E[r^2] under the r^-3 density
+    count = int(LEAVES_COVERAGE * size * size / (np.pi * mean_square))
+    radii = leaf_radii(count, low, high, rng) * SUPERSAMPLE
+    centres = rng.random((count, 2)) * big
+    greys = rng.integers(0, 256, count)
+    image = Image.new("L", (big, big), int(rng.integers(0, 256)))
+    draw = ImageDraw.Draw(image)
+    for (x, y), radius, grey in zip(centres.tolist(), radii.tolist(), greys.tolist(), strict=True):
+        draw.ellipse([x - radius, y - radius, x + radius, y + radius], fill=grey)
+    picture = np.asarray(image.resize((size, size), Image.Resampling.BOX), np.float32) / 255.0
+    if rng.random() < 1 / 3:
+        picture = gaussian_filter(picture, rng.uniform(0.5, 1.5), mode="reflect")
+    return picture
+
+
 TEXTURES: dict[str, Callable[[int, np.random.Generator], np.ndarray]] = {
     "fractal": fractal, "gabor": gabor, "hatching": hatching, "cells": cells, "text": text, "line_art": line_art,
+    "dead_leaves": dead_leaves,
 }
-DEFAULT_TEXTURES = {name: 1.0 for name in TEXTURES}
+DEFAULT_TEXTURES = {name: 1.0 for name in TEXTURES if name != "dead_leaves"}  # the six of the earlier folders
 
 
 def choose(rng: np.random.Generator, weights: Mapping[str, float]) -> str:
