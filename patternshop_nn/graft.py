@@ -20,7 +20,6 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from patternshop_nn.soup import ARCHITECTURE_KEYS
 from synthesis.errors import PatternshopError, run_module_cli
 
 if TYPE_CHECKING:  # importing the module pulls in Lightning
@@ -28,6 +27,7 @@ if TYPE_CHECKING:  # importing the module pulls in Lightning
 
 BRANCH_KEYS = ("correlation_encoder", "correlation_shared_levels", "correlation_stride")  # hyper-parameters of the branch
 BRANCH_MODULES = ("generator.correlation.", "generator.correlation_encoder.")  # its names in the state dict
+ENCODER_KEYS = ("levels", "base_channels", "max_channels", "upsample")  # hyper-parameters the branch's shapes follow
 
 
 def graft_correlation(density: Pix2PixModule, correlation: Pix2PixModule) -> Pix2PixModule:
@@ -44,8 +44,7 @@ def graft_correlation(density: Pix2PixModule, correlation: Pix2PixModule) -> Pix
     if not branch["correlation_encoder"] or branch["correlation_shared_levels"]:
         raise PatternshopError("the correlation checkpoint's decoder must read an encoder all of its own "
                                "(correlation_encoder true, correlation_shared_levels 0; made by patternshop_nn.tune_encoder)")
-    differ = [k for k in ARCHITECTURE_KEYS if k in ("levels", "base_channels", "max_channels", "upsample")
-              and density.hparams.get(k) != correlation.hparams.get(k)]
+    differ = [k for k in ENCODER_KEYS if density.hparams.get(k) != correlation.hparams.get(k)]
     if differ:
         key = differ[0]
         raise PatternshopError(f"the generators differ in {key} ({density.hparams.get(key)!r} against "

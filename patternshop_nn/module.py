@@ -118,15 +118,11 @@ class Pix2PixModule(L.LightningModule):
         if scale is None:
             loss, parts = l1, {"l1": l1}
         else:
-            ab = (fake[:, 1:] - target[:, 1:]).abs().mean()
-            if self.hparams.get("l_mean_l1", False):  # the mean from its own L1, the scale from the NLL of it detached
-                l_l1 = (fake[:, :1] - target[:, :1]).abs().mean()
-                nll = laplace_nll(target[:, :1], fake[:, :1].detach(), scale).mean()
-                loss = (l_l1 + self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0
-            else:
-                nll = laplace_nll(target[:, :1], fake[:, :1], scale).mean()
-                loss = (self.hparams.l_nll_weight * nll + 2.0 * ab) / 3.0
-            parts = {"l1": l1, "l_nll": nll}
+            mean_l1 = self.hparams.get("l_mean_l1", False)  # the mean from its own L1, the scale from the NLL of it detached
+            mean = fake[:, :1].detach() if mean_l1 else fake[:, :1]
+            nll = laplace_nll(target[:, :1], mean, scale).mean()
+            l_term = self.hparams.l_nll_weight * nll + ((fake[:, :1] - target[:, :1]).abs().mean() if mean_l1 else 0.0)
+            loss, parts = (l_term + 2.0 * (fake[:, 1:] - target[:, 1:]).abs().mean()) / 3.0, {"l1": l1, "l_nll": nll}
         if self.hparams.blurred_l1_weight > 0:
             parts["l_blurred_l1"] = blurred_l1(fake[:, :1], target[:, :1], self.hparams.blurred_l1_sigma_px)
             loss = loss + self.hparams.blurred_l1_weight * parts["l_blurred_l1"]
