@@ -17,6 +17,9 @@ Metrics, on maps in the network's units (L/100 and z, all in [0, 1]):
 is the mean |z error| (both channels) over the pixels whose true density is
 at least :data:`LATENT_MIN_DENSITY` — where there are no points, correlation
 is not observable and any value is as good as another.
+:func:`latent_error_by_edge_distance` splits the same error by the distance to
+the target's nearest correlation edge, in ab units: a reading that bleeds one
+region's colour into its neighbour's shows as a large error near the edges.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
+from scipy.ndimage import distance_transform_edt, gaussian_filter
 
 from data_gen.shards import Pairs
 from synthesis.errors import PatternshopError
@@ -34,6 +37,8 @@ from synthesis.raster import point_raster
 KDE_BANDWIDTHS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0)  # pixels of the raster
 MIN_WINDOW_POINTS = 128  # fewest points the perceptual decoder is given
 LATENT_MIN_DENSITY = 0.1
+EDGE_JUMP_AB = 6.0  # a correlation edge: neighbouring target pixels whose |da| + |db| exceeds this (ab units)
+EDGE_DISTANCE_BINS_PX = (0, 4, 8, 16, 32)  # lower ends of the distance bins (map pixels); the last is open
 
 
 def density_mae(predicted: np.ndarray, target: np.ndarray) -> float:
@@ -47,6 +52,36 @@ def latent_mae(predicted: np.ndarray, target: np.ndarray) -> float:
     inked = (1.0 - target[..., 0, :, :]) >= LATENT_MIN_DENSITY
     error = np.abs(predicted[..., 1:, :, :] - target[..., 1:, :, :]).mean(axis=-3)
     return float(error[inked].mean()) if inked.any() else float("nan")
+
+
+def correlation_edge_distance(target_latent: np.ndarray) -> np.ndarray:
+    """(H, W) distance in pixels from each pixel to the nearest correlation edge of a target latent map (2, H, W) in
+    [0, 1] (an edge lies between two 4-neighbours whose |da| + |db| exceeds :data:`EDGE_JUMP_AB`); inf without edges."""
+    ab = 255.0 * np.asarray(target_latent, np.float64)
+    jump = np.zeros(ab.shape[1:], bool)
+    horizontal = np.abs(np.diff(ab, axis=2)).sum(0) > EDGE_JUMP_AB
+    vertical = np.abs(np.diff(ab, axis=1)).sum(0) > EDGE_JUMP_AB
+    jump[:, 1:] |= horizontal
+    jump[:, :-1] |= horizontal
+    jump[1:, :] |= vertical
+    jump[:-1, :] |= vertical
+    return distance_transform_edt(~jump) if jump.any() else np.full(jump.shape, np.inf)
+
+
+def latent_error_by_edge_distance(predicted: np.ndarray, target: np.ndarray) -> list[dict]:
+    """Mean a, b error (Euclidean, ab units) by distance to the target's nearest correlation edge, over the pixels
+    :func:`latent_mae` counts; maps (K, 3, H, W) in [0, 1]. One row per bin of :data:`EDGE_DISTANCE_BINS_PX`:
+    ``from_px``, ``to_px`` (None: open), ``pixels``, ``mean_ab_error`` (None for an empty bin)."""
+    predicted, target = np.asarray(predicted, np.float64), np.asarray(target, np.float64)
+    distances = np.stack([correlation_edge_distance(t[1:]) for t in target])
+    errors = 255.0 * np.linalg.norm(predicted[:, 1:] - target[:, 1:], axis=1)
+    inked = (1.0 - target[:, 0]) >= LATENT_MIN_DENSITY
+    rows = []
+    for low, high in zip(EDGE_DISTANCE_BINS_PX, (*EDGE_DISTANCE_BINS_PX[1:], None), strict=True):
+        chosen = inked & (distances >= low) & (distances < (np.inf if high is None else high))
+        rows.append({"from_px": low, "to_px": high, "pixels": int(chosen.sum()),
+                     "mean_ab_error": round(float(errors[chosen].mean()), 2) if chosen.any() else None})
+    return rows
 
 
 def count_raster(xy_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

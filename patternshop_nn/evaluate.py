@@ -20,8 +20,10 @@ table beside it (``--markdown``) and contact sheets (``--previews``).
    :mod:`data_gen.standins`), made into pairs by their own readers.
 3. For each set: the model's ``density_mae`` and ``latent_mae``
    (:mod:`patternshop_nn.baselines`) beside the KDE density (best bandwidth)
-   and the palette-decoding correlation baseline on the same pairs, and the
-   relative gains.
+   and the palette-decoding correlation baseline on the same pairs, the
+   relative gains, and the model's a, b error by distance to the nearest
+   correlation edge (``model_ab_error_by_edge_distance``: how far a region's
+   colour bleeds into its neighbours).
 4. **Round trip** on ``--roundtrip`` held-out pairs: points → infer
    → synthesise (same point count) → points, scored against the pair's true
    map: density SSIM (:func:`synthesis.tone.density_fidelity`) and local PCF
@@ -46,7 +48,7 @@ import numpy as np
 
 from data_gen.shards import Pairs, load_pairs
 from export.runtime import OnnxModel
-from patternshop_nn.baselines import cached_baselines, density_mae, latent_mae
+from patternshop_nn.baselines import cached_baselines, density_mae, latent_error_by_edge_distance, latent_mae
 from synthesis.errors import PatternshopError, run_module_cli
 
 STANDIN_LAYOUTS = ("faces", "animals", "churches", "treecover")
@@ -69,6 +71,7 @@ def score(model: OnnxModel, folder: Path, cells: int = 4) -> dict:
             **baselines,
             "density_gain_vs_kde": round(1 - model_density / baselines["kde_density_mae"], 4),
             "latent_gain_vs_baseline": round(1 - model_latent / baselines["baseline_latent_mae"], 4),
+            "model_ab_error_by_edge_distance": latent_error_by_edge_distance(predicted, targets),
             "per_pair_model_density_mae": [round(density_mae(p, t), 4) for p, t in zip(predicted, targets, strict=True)],
             "per_pair_model_latent_mae": [round(latent_mae(p, t), 4) for p, t in zip(predicted, targets, strict=True)]}
 
@@ -121,7 +124,7 @@ def evaluate(model_path: str | None, data: Path, items: int, standin_items: int,
     heldout = make_pairs(data / "procedural", ["dataset=procedural", f"synthesis.points_per_ink={points_per_ink}"],
                          items, seed, workers)
     results = {"model": str(model.path), "metadata": model.metadata, "held_out_seed": seed, "procedural": score(model, heldout)}
-    for layout in STANDIN_LAYOUTS:
+    for layout in STANDIN_LAYOUTS if standin_items else ():
         root = data / "standins" / layout
         if not root.exists():
             write_standin(layout, root, standin_items, seed=seed)
@@ -180,12 +183,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--palette", metavar="NPZ", help="ood: palette whose presets name the colours (default: the shipped one)")
     parser.add_argument("--data", default="data/eval", help="heldout: folder for the held-out pairs and stand-ins (default data/eval)")
     parser.add_argument("--items", type=int, default=48, help="heldout: held-out procedural pairs (default 48)")
-    parser.add_argument("--standin-items", type=int, default=6, help="heldout: pictures per stand-in layout (default 6)")
+    parser.add_argument("--standin-items", type=int, default=6, help="heldout: pictures per stand-in layout (default 6; 0 skips the stand-ins)")
     parser.add_argument("--roundtrip", type=int, default=8, help="heldout: pairs for the round trip (default 8; 0 skips it)")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the evaluation data (default 1000; training uses 0)")
     parser.add_argument("--workers", type=int, default=2, help="heldout: pair-generation processes (default 2)")
 
     def run(args: argparse.Namespace) -> None:
+        from synthesis.atomic import atomic_write_text, check_writable
+
+        check_writable(args.out)  # an unwritable --out stops the run before any work, not after it
         with tempfile.TemporaryDirectory() as scratch:
             model_path = onnx_model_path(args.model, args.trained_points_per_ink, Path(scratch))
             if args.suite == "ood":
@@ -194,8 +200,6 @@ def main(argv: list[str] | None = None) -> int:
                 results = evaluate(str(model_path), Path(args.data), args.items, args.standin_items, args.roundtrip, args.seed,
                                    args.workers)
                 print(json.dumps({key: value for key, value in results.items() if key != "metadata"}, indent=2))
-        from synthesis.atomic import atomic_write_text
-
         atomic_write_text(Path(args.out), json.dumps(results, indent=2) + "\n")
 
     return run_module_cli(parser, run, argv)

@@ -170,3 +170,22 @@ def test_quick_half_empty_target_reads_the_ink_share() -> None:
     assert quick["measured"] == "2.00 %" and not quick["met"]
     results["inventions"]["half_empty_ink_share_right"] = 0.0049
     assert all(row["met"] for row in ood.targets(results))
+
+
+def test_heldout_suite_without_stand_ins_makes_and_reads_none(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--standin-items 0`` skips the stand-ins (it used to ask for a CelebAMask-HQ folder) and keeps the rest."""
+    made = []
+    monkeypatch.setattr(evaluate, "make_pairs", lambda out_dir, dataset, *args: made.append(dataset[0]) or out_dir)
+    monkeypatch.setattr(evaluate, "score", lambda model, folder: {"folder": str(folder)})
+    results = evaluate.evaluate(None, tmp_path, items=2, standin_items=0, roundtrip=0, seed=1000, workers=1)
+    assert made == ["dataset=procedural"] and not (tmp_path / "standins").exists()
+    assert results["procedural"] == {"folder": str(tmp_path / "procedural")}
+    assert not any(key.startswith("standin_") for key in results)
+
+
+def test_an_unwritable_out_stops_the_evaluation_before_any_work(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture) -> None:
+    """A missing --out folder is one line and exit 2 at once, not after minutes of pairs and scores."""
+    monkeypatch.setattr(evaluate, "evaluate", lambda *args: pytest.fail("the evaluation ran"))
+    code = evaluate.main(["--suite", "heldout", "--out", str(tmp_path / "missing" / "eval.json")])
+    assert code == 2 and "missing" in capsys.readouterr().err

@@ -16,7 +16,14 @@ from torch.utils.data import DataLoader, TensorDataset
 from data_gen.pairs import generate
 from data_gen.provenance import compose_config
 from data_gen.shards import load_pairs
-from patternshop_nn.baselines import density_mae, kde_density, latent_mae, windowed_latent
+from patternshop_nn.baselines import (
+    correlation_edge_distance,
+    density_mae,
+    kde_density,
+    latent_error_by_edge_distance,
+    latent_mae,
+    windowed_latent,
+)
 from patternshop_nn.data import PairDataModule, PairDataset, dihedral, split_items
 from patternshop_nn.module import Pix2PixModule
 from patternshop_nn.networks import DualBranchUNet, GANLoss, NearestUpConv, PatchDiscriminator, fuse_upsampling
@@ -322,11 +329,46 @@ def test_score_compares_the_model_with_the_baselines(pair_dir: Path, tmp_path: P
     oracle = score(_FixedAnswers(pairs.raster, truth), pair_dir, cells=2)
     assert oracle["model_density_mae"] == 0 and oracle["model_latent_mae"] == 0 and max(oracle["per_pair_model_latent_mae"]) == 0
     assert oracle["density_gain_vs_kde"] == 1 and oracle["latent_gain_vs_baseline"] == 1
+    assert all(row["mean_ab_error"] in (0, None) for row in oracle["model_ab_error_by_edge_distance"])
+    assert sum(row["pixels"] for row in result["model_ab_error_by_edge_distance"]) > 0
     kde = truth.copy()
     kde[:, 0] = [1 - kde_density(raster, 1500, result["kde_bandwidth_px"]) for raster in pairs.raster]
     as_kde = score(_FixedAnswers(pairs.raster, kde), pair_dir, cells=2)
     assert as_kde["model_density_mae"] == pytest.approx(result["kde_density_mae"], abs=2e-5)
     assert abs(as_kde["density_gain_vs_kde"]) < 1e-3 and as_kde["latent_gain_vs_baseline"] == 1
+
+
+def test_correlation_edge_distance_counts_pixels_from_the_edge() -> None:
+    """Two regions side by side: the pixels on either side of the edge are at 0, the next at 1 ...; no edge: inf."""
+    latent = np.zeros((2, 6, 10))
+    latent[0, :, 4:] = 40 / 255  # a jumps by 40 ab units between columns 3 and 4
+    latent[1, :, 4:] = 1 / 255  # a step under EDGE_JUMP_AB on its own adds nothing
+    distance = correlation_edge_distance(latent)
+    assert distance[:, 3].max() == 0 and distance[:, 4].max() == 0
+    np.testing.assert_array_equal(distance[2], [3, 2, 1, 0, 0, 1, 2, 3, 4, 5])
+    small = np.zeros((2, 6, 10))
+    small[0, :, 4:] = 5 / 255  # 5 ab units: not an edge
+    assert np.isinf(correlation_edge_distance(small)).all()
+
+
+def test_latent_error_by_edge_distance_finds_a_colour_bleeding_across_an_edge() -> None:
+    """A reading whose left colour bleeds 3 px into the right region errs only in the 0-4 px bin, by the jump."""
+    size = 64
+    target = np.zeros((1, 3, size, size))
+    target[:, 0] = 0.5  # density 0.5 everywhere: every pixel counts
+    target[:, 1] = 0.3
+    target[:, 1, :, 32:] = 0.3 + 51 / 255  # a jumps by 51 ab units at column 32
+    predicted = target.copy()
+    predicted[:, 1, :, 32:35] = 0.3  # the left colour bleeds over columns 32-34
+    rows = latent_error_by_edge_distance(predicted, target)
+    assert [row["from_px"] for row in rows] == [0, 4, 8, 16, 32] and rows[-1]["to_px"] is None
+    near = rows[0]
+    assert near["pixels"] == size * 8  # columns 28-35
+    assert near["mean_ab_error"] == pytest.approx(51 * 3 / 8, abs=0.01)  # 3 of its 8 columns wrong by 51
+    assert all(row["mean_ab_error"] == 0 for row in rows[1:4]) and rows[4]["pixels"] == 0
+    light = target.copy()
+    light[:, 0] = 1.0  # no ink: nothing counted
+    assert all(row["pixels"] == 0 and row["mean_ab_error"] is None for row in latent_error_by_edge_distance(predicted, light))
 
 
 class _FixedAnswers:
