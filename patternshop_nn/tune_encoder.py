@@ -15,7 +15,9 @@ features are computed once; they and the skips they feed stay the shared ones), 
 trained at ``--head-lr``, a, b up-sampled bilinearly). The shared encoder, the density decoder, the full-resolution path and the ``l_scale`` head are not on
 their path, so L and its Laplace scale are the model's bit for bit. The loss is the L1 of a, b (z in [0, 1])
 against the pairs' targets over all pixels, as in training; each batch comes from one folder, drawn uniformly or in
-proportion to ``--folder-weights``, each pair under a fresh random symmetry of the square; batch-norm statistics stay as trained (eval mode); Adam (betas
+proportion to ``--folder-weights``, each pair under a fresh random symmetry of the square; with ``--edge-weight W`` the
+inked pixels within ``--edge-reach-px`` of a correlation edge of the target weigh 1 + W (:func:`edge_mask`: where a
+region's colour bleeds into its neighbour's); batch-norm statistics stay as trained (eval mode); Adam (betas
 0.5, 0.999), cosine decay to 0. ``val_fraction`` of each folder's pairs is held out; the checkpoint records per
 folder the held-out a, b error before and after, in ab units (0..255).
 
@@ -65,43 +67,70 @@ class EncoderSettings:
     shared_levels: int = 0  # levels the new encoder leaves to the shared one (cheaper); a model with its own keeps it
     correlation_stride: int = 1  # > 1: the correlation decoder stops at S / this, with a new head (cheaper)
     head_lr: float = 1e-3  # Adam's learning rate of that new head (it starts from scratch)
+    edge_weight: float = 0.0  # > 0: inked pixels near a correlation edge weigh 1 + this in the loss (see edge_mask)
+    edge_reach_px: float = 16.0  # "near": closer than this to the target's nearest correlation edge, raster pixels
 
 
 @dataclass
 class FolderPairs:
     """One pair folder's cached pairs (``name``: its path as given): rasters (N, 1, S, S) float16 (0 or 1), a, b
-    targets (N, 2, S, S) float16 in [0, 1] (z = (ab + 128) / 255), held-out and training indices."""
+    targets (N, 2, S, S) float16 in [0, 1] (z = (ab + 128) / 255), held-out and training indices, and with an edge
+    weight the pixels it weighs (N, 1, S, S) bool (:func:`edge_mask`; None without)."""
 
     name: str
     raster: torch.Tensor
     ab: torch.Tensor
     held_out: torch.Tensor
     train: torch.Tensor
+    near_edge: torch.Tensor | None = None
+
+
+def edge_mask(target: np.ndarray, reach_px: float) -> np.ndarray:
+    """(N, 1, S, S) bool: the inked pixels (true density >= ``LATENT_MIN_DENSITY``) closer than ``reach_px`` to the
+    nearest correlation edge of their target (:func:`patternshop_nn.baselines.correlation_edge_distance`), of pair
+    targets (N, S, S, 3) uint8 as stored. There a light region's colour bleeds from its neighbour's (trial v24,
+    ``docs/network.md``: held-out a, b error 45 ab within 4 px of an edge against 16 beyond 32 px)."""
+    from patternshop_nn.baselines import LATENT_MIN_DENSITY, correlation_edge_distance
+
+    latent = target[..., 1:].transpose(0, 3, 1, 2) / 255.0
+    inked = 1.0 - target[..., 0] / 255.0 >= LATENT_MIN_DENSITY
+    near = np.stack([correlation_edge_distance(z) < reach_px for z in latent])
+    return (near & inked)[:, None]
 
 
 def folder_pairs(folder: str | Path, settings: EncoderSettings, rng: torch.Generator) -> FolderPairs:
     """The first ``settings.shards_per_folder`` shards of a pair folder, ``settings.val_fraction`` held out."""
     from data_gen.shards import read_shard, require_shards
 
-    rasters, targets = [], []
+    rasters, targets, near = [], [], []
     for shard in require_shards(folder)[: settings.shards_per_folder]:
         pairs = read_shard(shard)
         rasters.append(torch.from_numpy(pairs.raster.astype(np.float16))[:, None])
         targets.append(torch.from_numpy(pairs.target[..., 1:]).permute(0, 3, 1, 2).float().div(255.0).half())
+        if settings.edge_weight > 0:
+            near.append(torch.from_numpy(edge_mask(pairs.target, settings.edge_reach_px)))
     order = torch.randperm(sum(len(r) for r in rasters), generator=rng)
     held = max(1, round(settings.val_fraction * len(order)))
     if held >= len(order):
         raise PatternshopError(f"{folder}: {len(order)} pairs leave none to train on after holding {held} out")
-    return FolderPairs(str(Path(folder)), torch.cat(rasters), torch.cat(targets), order[:held], order[held:])
+    return FolderPairs(str(Path(folder)), torch.cat(rasters), torch.cat(targets), order[:held], order[held:],
+                       torch.cat(near) if near else None)
 
 
-def _ab_error(generator: torch.nn.Module, data: FolderPairs, index: torch.Tensor, codes: list[int]) -> torch.Tensor:
-    """Mean |a, b - target| (z units) of the pairs ``index``, each turned by its symmetry ``codes[k]``."""
+def _ab_error(generator: torch.nn.Module, data: FolderPairs, index: torch.Tensor, codes: list[int],
+              edge_weight: float = 0.0) -> torch.Tensor:
+    """Mean |a, b - target| (z units) of the pairs ``index``, each turned by its symmetry ``codes[k]``; with
+    ``edge_weight`` > 0 the pixels of ``data.near_edge`` weigh 1 + ``edge_weight`` in the mean."""
     from patternshop_nn.data import dihedral
 
-    raster, ab = (torch.cat([dihedral(part[k : k + 1].float(), code) for k, code in zip(index.tolist(), codes, strict=True)])
-                  for part in (data.raster, data.ab))
-    return (torch.sigmoid(generator.correlation_logits(raster)) - ab).abs().mean()
+    def turned(part: torch.Tensor) -> torch.Tensor:
+        return torch.cat([dihedral(part[k : k + 1].float(), code) for k, code in zip(index.tolist(), codes, strict=True)])
+
+    error = (torch.sigmoid(generator.correlation_logits(turned(data.raster))) - turned(data.ab)).abs()
+    if edge_weight <= 0:
+        return error.mean()
+    weight = 1.0 + edge_weight * turned(data.near_edge)
+    return (error * weight).sum() / (weight.sum() * error.shape[1])
 
 
 @torch.no_grad()
@@ -127,6 +156,10 @@ def tune_encoder(module: Pix2PixModule, folders: list[FolderPairs], settings: En
     except ValueError as exc:
         raise PatternshopError(f"--correlation-stride: {exc}") from exc
     weights = settings.folder_weights
+    if settings.edge_weight < 0 or settings.edge_reach_px <= 0 or \
+            (settings.edge_weight > 0 and any(data.near_edge is None for data in folders)):
+        raise PatternshopError(f"--edge-weight must be >= 0 and --edge-reach-px > 0 (folders cached with the weight), "
+                               f"got {settings.edge_weight}, {settings.edge_reach_px}")
     if weights is not None and (len(weights) != len(folders) or min(weights) < 0 or sum(weights) <= 0):
         raise PatternshopError(f"--folder-weights needs one weight >= 0 per folder ({len(folders)}), not all 0; got {list(weights)}")
     generator = module.generator.eval()  # batch-norm statistics and dropout as trained throughout
@@ -157,7 +190,8 @@ def tune_encoder(module: Pix2PixModule, folders: list[FolderPairs], settings: En
             torch.multinomial(torch.tensor(weights, dtype=torch.float64), 1, generator=rng)
         data = folders[int(drawn)]
         batch = data.train[torch.randint(len(data.train), (settings.batch_size,), generator=rng)]
-        loss = _ab_error(generator, data, batch, torch.randint(8, (settings.batch_size,), generator=rng).tolist())
+        loss = _ab_error(generator, data, batch, torch.randint(8, (settings.batch_size,), generator=rng).tolist(),
+                         settings.edge_weight)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -182,6 +216,11 @@ def main(argv: list[str] | None = None) -> int:
                              "its a, b up-sampled bilinearly: a cheaper pass (default 1: full resolution)")
     parser.add_argument("--head-lr", type=float, default=defaults.head_lr,
                         help=f"learning rate of that new head (default {defaults.head_lr:g})")
+    parser.add_argument("--edge-weight", type=float, default=defaults.edge_weight, metavar="W",
+                        help="inked pixels closer than --edge-reach-px to a correlation edge of the target weigh 1 + W "
+                             "in the loss, where a region's colour bleeds into its neighbour's (default 0: all alike)")
+    parser.add_argument("--edge-reach-px", type=float, default=defaults.edge_reach_px, metavar="PX",
+                        help=f"how near to an edge, in raster pixels (default {defaults.edge_reach_px:g})")
     parser.add_argument("--shared-levels", type=int, default=defaults.shared_levels,
                         help="encoder levels the correlation decoder keeps sharing with the density decoder; its own "
                              "encoder starts after them and costs less (default 0: all its own)")
@@ -190,7 +229,8 @@ def main(argv: list[str] | None = None) -> int:
         weights = tuple(args.folder_weights) if args.folder_weights else None
         settings = EncoderSettings(args.steps, args.batch_size, args.lr, args.shards_per_folder, seed=args.seed,
                                    folder_weights=weights, shared_levels=args.shared_levels,
-                                   correlation_stride=args.correlation_stride, head_lr=args.head_lr)
+                                   correlation_stride=args.correlation_stride, head_lr=args.head_lr,
+                                   edge_weight=args.edge_weight, edge_reach_px=args.edge_reach_px)
         tune_from_folders(args, settings, lambda module, folder, rng: folder_pairs(folder, settings, rng), tune_encoder,
                           "encoder_tuning")
 

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from test_tune_correlation import assert_the_command_writes_a_checkpoint_that_exports, model, pair_folder
 
+from data_gen.shards import read_shard
 from patternshop_nn.onnx_export import load_module
-from patternshop_nn.tune_encoder import EncoderSettings, folder_pairs, main, tune_encoder
+from patternshop_nn.tune_encoder import EncoderSettings, _ab_error, edge_mask, folder_pairs, main, tune_encoder
 from synthesis.errors import PatternshopError
 
 
@@ -55,3 +57,41 @@ def test_folder_weights_decide_which_folder_trains_and_bad_settings_are_refused(
     for bad in (3, 0, 64):  # not a power of 2; beyond the deepest level
         with pytest.raises(PatternshopError, match="correlation-stride"):
             tune_encoder(model(), folders, EncoderSettings(**{**settings.__dict__, "correlation_stride": bad}))
+
+
+def test_edge_mask_marks_inked_pixels_near_a_correlation_edge():
+    target = np.zeros((1, 8, 40, 3), np.uint8)
+    target[..., 0] = 128  # density 0.5: inked
+    target[..., 1] = 100
+    target[:, :, 20:, 1] = 140  # a jumps by 40 ab units between columns 19 and 20
+    target[:, :, 35:, 0] = 255  # white on the right: never weighed
+    mask = edge_mask(target, reach_px=3)
+    assert mask.shape == (1, 1, 8, 40) and mask.dtype == bool
+    assert mask[0, 0, 0].nonzero()[0].tolist() == [17, 18, 19, 20, 21, 22]  # distance 0, 1, 2 on either side
+
+
+def test_the_edge_weight_weighs_the_near_pixels_and_a_tune_with_it_learns(tmp_path):
+    settings = EncoderSettings(steps=30, batch_size=4, lr=1e-2, val_fraction=0.25, edge_weight=3.0, edge_reach_px=4.0)
+    rng = torch.Generator().manual_seed(0)
+    folder = pair_folder(tmp_path / "one", seed=0)
+    pairs = read_shard(folder / "pairs-00000.npz")
+    pairs.target[:, :, 16:, 1] = 120  # the right three quarters another colour: an edge at column 16
+    pairs.write(folder / "pairs-00000.npz")
+    data = folder_pairs(folder, settings, rng)
+    assert data.near_edge is not None and data.near_edge.shape[0] == data.raster.shape[0] and data.near_edge.any()
+    module = model()
+    generator = module.generator.eval()
+    index = data.train[:3]
+    with torch.no_grad():
+        error = (torch.sigmoid(generator.correlation_logits(data.raster[index].float())) - data.ab[index].float()).abs()
+        weight = 1 + 3.0 * data.near_edge[index].float()
+        want = float((error * weight).sum() / (weight.sum() * 2))
+        assert float(_ab_error(generator, data, index, [0, 0, 0], 3.0)) == pytest.approx(want, rel=1e-5)
+        assert float(_ab_error(generator, data, index, [0, 0, 0])) == pytest.approx(float(error.mean()), rel=1e-5)
+        assert want != pytest.approx(float(error.mean()), rel=1e-3)
+    report = tune_encoder(module, [data], settings)
+    assert report["held_out_ab_error"][data.name] < report["held_out_ab_error_before"][data.name]
+    unweighted = folder_pairs(folder, EncoderSettings(), torch.Generator().manual_seed(0))
+    assert unweighted.near_edge is None
+    with pytest.raises(PatternshopError, match="edge-weight"):
+        tune_encoder(model(), [unweighted], settings)
