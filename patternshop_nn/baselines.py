@@ -41,6 +41,12 @@ EDGE_JUMP_AB = 6.0  # a correlation edge: neighbouring target pixels whose |da| 
 EDGE_DISTANCE_BINS_PX = (0, 4, 8, 16, 32)  # lower ends of the distance bins (map pixels); the last is open
 
 
+def inked(target_l: np.ndarray) -> np.ndarray:
+    """Where correlation is observable: true density 1 - L >= :data:`LATENT_MIN_DENSITY`, for the target's L channel
+    (any shape, L/100 in [0, 1]; a numpy array or a torch tensor, answered in kind)."""
+    return (1.0 - target_l) >= LATENT_MIN_DENSITY
+
+
 def density_mae(predicted: np.ndarray, target: np.ndarray) -> float:
     """Mean |error| of density = 1 - channel 0, maps (..., 3, H, W) in [0, 1]."""
     return float(np.mean(np.abs(np.asarray(predicted)[..., 0, :, :] - np.asarray(target)[..., 0, :, :])))
@@ -49,9 +55,9 @@ def density_mae(predicted: np.ndarray, target: np.ndarray) -> float:
 def latent_mae(predicted: np.ndarray, target: np.ndarray) -> float:
     """Mean |latent error| over pixels with true density >= LATENT_MIN_DENSITY; maps (..., 3, H, W) in [0, 1]."""
     predicted, target = np.asarray(predicted), np.asarray(target)
-    inked = (1.0 - target[..., 0, :, :]) >= LATENT_MIN_DENSITY
+    observable = inked(target[..., 0, :, :])
     error = np.abs(predicted[..., 1:, :, :] - target[..., 1:, :, :]).mean(axis=-3)
-    return float(error[inked].mean()) if inked.any() else float("nan")
+    return float(error[observable].mean()) if observable.any() else float("nan")
 
 
 def correlation_edge_distance(target_latent: np.ndarray) -> np.ndarray:
@@ -75,10 +81,10 @@ def latent_error_by_edge_distance(predicted: np.ndarray, target: np.ndarray) -> 
     predicted, target = np.asarray(predicted, np.float64), np.asarray(target, np.float64)
     distances = np.stack([correlation_edge_distance(t[1:]) for t in target])
     errors = 255.0 * np.linalg.norm(predicted[:, 1:] - target[:, 1:], axis=1)
-    inked = (1.0 - target[:, 0]) >= LATENT_MIN_DENSITY
+    observable = inked(target[:, 0])
     rows = []
     for low, high in zip(EDGE_DISTANCE_BINS_PX, (*EDGE_DISTANCE_BINS_PX[1:], None), strict=True):
-        chosen = inked & (distances >= low) & (distances < (np.inf if high is None else high))
+        chosen = observable & (distances >= low) & (distances < (np.inf if high is None else high))
         rows.append({"from_px": low, "to_px": high, "pixels": int(chosen.sum()),
                      "mean_ab_error": round(float(errors[chosen].mean()), 2) if chosen.any() else None})
     return rows

@@ -62,7 +62,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from patternshop_nn.baselines import LATENT_MIN_DENSITY
+from patternshop_nn.baselines import inked
 from patternshop_nn.networks import (DualBranchUNet, GANLoss, PatchDiscriminator, blurred_l1, init_weights, laplace_nll,
                                      structural_similarity)
 from synthesis.atomic import atomic_path
@@ -199,8 +199,7 @@ class Pix2PixModule(L.LightningModule):
                            "val/l_scale_mean": scale.mean(),
                            "val/l_error_over_scale": ((predicted[:, :1] - target[:, :1]).abs() / scale).mean()},
                           batch_size=len(raster))
-        inked = (1.0 - target[:, 0]) >= LATENT_MIN_DENSITY
-        latent_error = (predicted[:, 1:] - target[:, 1:]).abs().mean(dim=1)[inked]
+        latent_error = (predicted[:, 1:] - target[:, 1:]).abs().mean(dim=1)[inked(target[:, 0])]
         # batch sums weighted like the metrics' definitions (pixels; inked pixels for the latent)
         self.log("val/density_mae", density_error, batch_size=len(raster), prog_bar=True)
         if latent_error.numel():

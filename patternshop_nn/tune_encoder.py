@@ -90,12 +90,11 @@ def edge_mask(target: np.ndarray, reach_px: float) -> np.ndarray:
     nearest correlation edge of their target (:func:`patternshop_nn.baselines.correlation_edge_distance`), of pair
     targets (N, S, S, 3) uint8 as stored. There a light region's colour bleeds from its neighbour's (trial v24,
     ``docs/network.md``: held-out a, b error 45 ab within 4 px of an edge against 16 beyond 32 px)."""
-    from patternshop_nn.baselines import LATENT_MIN_DENSITY, correlation_edge_distance
+    from patternshop_nn.baselines import correlation_edge_distance, inked
 
     latent = target[..., 1:].transpose(0, 3, 1, 2) / 255.0
-    inked = 1.0 - target[..., 0] / 255.0 >= LATENT_MIN_DENSITY
     near = np.stack([correlation_edge_distance(z) < reach_px for z in latent])
-    return (near & inked)[:, None]
+    return (near & inked(target[..., 0] / 255.0))[:, None]
 
 
 def folder_pairs(folder: str | Path, settings: EncoderSettings, rng: torch.Generator) -> FolderPairs:
